@@ -1,0 +1,133 @@
+"""Configuration of the odometry pipeline, grouped by concern.
+
+Each group is a dataclass whose fields are declared parameters (see
+:mod:`laser_odom.core.params`); the ROS parameter name of a field is its field name,
+and matcher settings live under ``<matcher>.<field>``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from laser_odom.core.matchers import default_config, matcher_names, MatcherConfig
+from laser_odom.core.params import param, ParameterError, replace_checked
+from laser_odom.core.scan import LaserMounting
+
+PRIORS = ('none', 'constant_velocity', 'odom', 'imu')
+"""Motion priors: ``none`` starts every match at zero motion."""
+
+
+@dataclass
+class ScanConfig:
+    """Which scans and readings are used."""
+
+    min_valid_points: int = param(
+        20, 'Scans with fewer valid readings than this are skipped.', 3, 100000)
+
+
+@dataclass
+class MountingConfig:
+    """Pose of the laser on the base (base_frame <- laser frame)."""
+
+    laser_x: float = param(0.0, 'Laser position on the base, x [m].', -10.0, 10.0)
+    laser_y: float = param(0.0, 'Laser position on the base, y [m].', -10.0, 10.0)
+    laser_yaw: float = param(0.0, 'Laser yaw on the base [rad].', -math.pi, math.pi)
+    laser_upside_down: bool = param(
+        False, 'Laser mounted upside down (roll of pi): the scan is mirrored.')
+
+    def mounting(self) -> LaserMounting:
+        """Return the mounting as a :class:`LaserMounting`."""
+        return LaserMounting(self.laser_x, self.laser_y, self.laser_yaw, self.laser_upside_down)
+
+
+@dataclass
+class MotionConfig:
+    """Where each match's initial guess comes from."""
+
+    prior: str = param(
+        'constant_velocity', 'Initial guess of each match: none, constant_velocity, '
+        'odom (wheel odometry) or imu (yaw from an IMU).', choices=PRIORS)
+    max_scan_gap: float = param(
+        1.0, 'A gap between scans longer than this [s] drops the motion prior.', 0.0, 3600.0)
+
+
+@dataclass
+class AcceptanceConfig:
+    """When a match is trusted, and what happens when it is not."""
+
+    min_inlier_ratio: float = param(
+        0.3, 'Reject matches whose fraction of paired points is below this.', 0.0, 1.0)
+    max_correction_linear: float = param(
+        0.5, 'Reject matches that move this far [m] from the prediction.', 0.0, 100.0)
+    max_correction_angular: float = param(
+        0.5, 'Reject matches that turn this far [rad] from the prediction.', 0.0, math.pi)
+    rejected_motion: str = param(
+        'predict', 'On a rejected match: predict (advance by the prior) or hold (no motion).',
+        choices=('predict', 'hold'))
+    degeneracy_threshold: float = param(
+        1e-2, 'Directions whose match information, relative to the strongest, is '
+        'below this are degenerate and take the prediction.', 0.0, 1.0)
+
+
+@dataclass
+class KeyframeConfig:
+    """Matching against a keyframe instead of the previous scan."""
+
+    keyframe_distance: float = param(
+        0.0, 'Keep matching against the last keyframe until the robot moved this far '
+        '[m] (0 = scan-to-scan).', 0.0, 100.0)
+    keyframe_angle: float = param(
+        0.0, '...or turned this far [rad] (0 = scan-to-scan).', 0.0, math.pi)
+
+
+@dataclass
+class PipelineConfig:
+    """Everything the odometry pipeline needs, grouped by concern."""
+
+    matcher: str = 'icp'
+    matcher_config: MatcherConfig | None = None
+    scan: ScanConfig = field(default_factory=ScanConfig)
+    mounting: MountingConfig = field(default_factory=MountingConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+
+    def resolved_matcher_config(self) -> MatcherConfig:
+        """Return the matcher's configuration, its tuned defaults when unset."""
+        return self.matcher_config if self.matcher_config is not None else default_config(
+            self.matcher)
+
+
+PIPELINE_GROUPS = ('scan', 'mounting', 'motion', 'acceptance', 'keyframes')
+
+
+def pipeline_config_from_params(values: Mapping[str, Any]) -> PipelineConfig:
+    """Build a :class:`PipelineConfig` from flat ROS-style parameters.
+
+    ``values`` maps names such as ``matcher``, ``min_inlier_ratio`` or
+    ``plicp.max_iterations`` to values, as found under ``ros__parameters`` in the
+    node's YAML. Unknown names and bad values raise :class:`ParameterError`.
+    Parameters that belong to the ROS shell only (frames, topics) are ignored.
+    """
+    remaining = dict(values)
+    matcher = remaining.pop('matcher', 'icp')
+    if matcher not in matcher_names():
+        raise ParameterError(
+            f'unknown matcher {matcher!r}; valid names: {", ".join(matcher_names())}')
+    config = PipelineConfig(matcher=matcher)
+    for group in PIPELINE_GROUPS:
+        current = getattr(config, group)
+        names = set(current.__dataclass_fields__)
+        picked = {k: remaining.pop(k) for k in list(remaining) if k in names}
+        setattr(config, group, replace_checked(current, picked))
+    for name in matcher_names():
+        prefix = name + '.'
+        picked = {k[len(prefix):]: remaining.pop(k) for k in list(remaining)
+                  if k.startswith(prefix)}
+        if name == matcher:
+            config.matcher_config = replace_checked(default_config(name), picked, prefix)
+        else:
+            replace_checked(default_config(name), picked, prefix)
+    return config

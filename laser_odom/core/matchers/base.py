@@ -1,0 +1,87 @@
+"""The one interface every scan matcher implements, and the result it returns.
+
+A matcher estimates the pose of the *current* scan in the frame of the *reference*
+scan: the rigid motion ``T`` with ``q ~= R p + t`` for a current point ``p`` and its
+reference counterpart ``q``. Scan-to-scan odometry composes these motions.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.params import param
+from laser_odom.core.scan import ScanPoints
+
+
+@dataclass
+class MatcherConfig:
+    """Settings every matcher shares; each matcher subclasses it with tuned defaults."""
+
+    max_iterations: int = param(
+        30, 'Iteration cap of one match.', 1, 500)
+    max_correspondence_distance: float = param(
+        0.5, 'Pairs farther apart than this [m] are not correspondences.', 0.01, 10.0)
+    convergence_translation: float = param(
+        1e-5, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
+    convergence_rotation: float = param(
+        1e-5, '...and rotates it less than this [rad].', 0.0, 1.0)
+    min_correspondences: int = param(
+        10, 'A match with fewer correspondences than this fails.', 3, 100000)
+
+
+@dataclass
+class MatchResult:
+    """Outcome of one scan match.
+
+    ``pose`` is the current scan's pose in the reference frame. ``information`` is the
+    3x3 information matrix of that estimate (``[x, y, theta]``, SI units) and
+    ``covariance`` its inverse (regularised if the information is singular).
+    ``residual`` is the RMS of the inlier residuals [m] under the matcher's metric.
+    """
+
+    pose: np.ndarray
+    converged: bool
+    iterations: int
+    inlier_ratio: float
+    residual: float
+    information: np.ndarray
+    covariance: np.ndarray
+    correspondences: int = 0
+    degenerate: bool = False
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def failure(cls, initial_guess: np.ndarray, iterations: int = 0,
+                correspondences: int = 0, reason: str = '') -> 'MatchResult':
+        """Return a non-converged result that keeps the initial guess."""
+        return cls(
+            pose=np.array(initial_guess, dtype=float), converged=False,
+            iterations=iterations, inlier_ratio=0.0, residual=float('inf'),
+            information=np.zeros((3, 3)), covariance=np.diag([1e3, 1e3, 1e3]),
+            correspondences=correspondences, extra={'reason': reason} if reason else {})
+
+
+class ScanMatcher(ABC):
+    """Base class of all matchers: a name, a configuration type and ``match``."""
+
+    name: ClassVar[str]
+    config_type: ClassVar[type[MatcherConfig]] = MatcherConfig
+
+    def __init__(self, config: MatcherConfig | None = None) -> None:
+        """Create the matcher with ``config`` or its tuned defaults."""
+        self.config = config if config is not None else self.config_type()
+
+    @abstractmethod
+    def match(self, reference: ScanPoints, current: ScanPoints,
+              initial_guess: se2.Pose) -> MatchResult:
+        """Estimate the pose of ``current`` in the frame of ``reference``."""
+
+    def converged_step(self, step: se2.Pose) -> bool:
+        """Tell whether an iteration's increment is below the convergence thresholds."""
+        return (float(np.hypot(step[0], step[1])) < self.config.convergence_translation
+                and abs(float(step[2])) < self.config.convergence_rotation)

@@ -1,0 +1,66 @@
+"""Information and covariance of a match from its linearised residuals.
+
+For residuals r_i with Jacobians J_i (with respect to ``[x, y, theta]``) and
+weights w_i, the Gauss-Newton information is ``H = sum w_i J_i^T J_i / sigma^2``
+with ``sigma^2`` the weighted residual variance (the inverse-Hessian covariance
+estimate; Bengtsson & Baerveldt 2003, Censi 2007 for its ICP use).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MIN_RESIDUAL_SIGMA = 0.005
+"""Floor on the residual standard deviation [m]: a noise-free fit is not infinitely certain."""
+
+
+def point_to_line_jacobians(rotated_points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Jacobians (N, 3) of ``n . (R p + t - q)`` with respect to ``[x, y, theta]``.
+
+    ``rotated_points`` are ``R p`` (already rotated by the current estimate);
+    d(R p)/d theta = [-(Rp)_y, (Rp)_x].
+    """
+    dtheta = normals[:, 1] * rotated_points[:, 0] - normals[:, 0] * rotated_points[:, 1]
+    return np.column_stack((normals[:, 0], normals[:, 1], dtheta))
+
+
+def point_to_point_jacobians(rotated_points: np.ndarray) -> np.ndarray:
+    """Jacobians (N, 2, 3) of ``R p + t - q`` with respect to ``[x, y, theta]``."""
+    n = rotated_points.shape[0]
+    jac = np.zeros((n, 2, 3))
+    jac[:, 0, 0] = 1.0
+    jac[:, 1, 1] = 1.0
+    jac[:, 0, 2] = -rotated_points[:, 1]
+    jac[:, 1, 2] = rotated_points[:, 0]
+    return jac
+
+
+def residual_variance(residuals: np.ndarray, weights: np.ndarray | None = None,
+                      dof: int = 3, floor: float = MIN_RESIDUAL_SIGMA) -> float:
+    """Weighted residual variance with ``dof`` removed, floored at ``floor**2``."""
+    per_pair = residuals.reshape(residuals.shape[0], -1)
+    w = np.ones(per_pair.shape[0]) if weights is None else weights
+    denom = max(per_pair.shape[1] * float(w.sum()) - dof, 1.0)
+    return max(float(np.dot(w, np.square(per_pair).sum(axis=1))) / denom, floor * floor)
+
+
+def information_from_jacobians(jacobians: np.ndarray, weights: np.ndarray | None,
+                               variance: float) -> np.ndarray:
+    """Return ``sum_i w_i J_i^T J_i / variance`` for (N, 3) or (N, m, 3) Jacobians."""
+    jac = jacobians if jacobians.ndim == 3 else jacobians[:, None, :]
+    w = np.ones(jac.shape[0]) if weights is None else weights
+    info = np.einsum('n,nmi,nmj->ij', w, jac, jac)
+    return 0.5 * (info + info.T) / variance
+
+
+def covariance_from_information(information: np.ndarray,
+                                max_variance: float = 1e3) -> np.ndarray:
+    """Invert an information matrix; unobservable directions get ``max_variance``.
+
+    The eigen-decomposition keeps the result symmetric positive definite even when
+    the information is singular (a corridor leaves one direction unconstrained).
+    """
+    values, vectors = np.linalg.eigh(0.5 * (information + information.T))
+    variances = np.where(values > 1.0 / max_variance, 1.0 / np.maximum(values, 1e-300),
+                         max_variance)
+    return (vectors * variances) @ vectors.T

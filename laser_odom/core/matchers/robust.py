@@ -1,0 +1,59 @@
+"""Robust weighting and trimming of residuals, shared by the matchers.
+
+Weights follow iteratively reweighted least squares: a kernel rho(r) becomes the
+weight w(r) = rho'(r) / r (Zhang, "Parameter estimation techniques", 1997).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+KERNELS = ('none', 'huber', 'cauchy', 'tukey')
+
+
+def robust_weights(residuals: np.ndarray, kernel: str, scale: float) -> np.ndarray:
+    """Return IRLS weights in [0, 1] for ``residuals`` under ``kernel`` with ``scale``."""
+    r = np.abs(residuals) / max(scale, 1e-12)
+    if kernel == 'none':
+        return np.ones_like(r)
+    if kernel == 'huber':
+        return np.where(r <= 1.0, 1.0, 1.0 / np.maximum(r, 1e-12))
+    if kernel == 'cauchy':
+        return 1.0 / (1.0 + r * r)
+    if kernel == 'tukey':
+        return np.where(r < 1.0, (1.0 - r * r) ** 2, 0.0)
+    raise ValueError(f'unknown robust kernel {kernel!r}; valid: {", ".join(KERNELS)}')
+
+
+def trimmed_mask(residuals: np.ndarray, keep_fraction: float) -> np.ndarray:
+    """Keep the ``keep_fraction`` smallest absolute residuals (trimmed ICP).
+
+    Chetverikov et al., "The Trimmed Iterative Closest Point Algorithm", ICPR 2002.
+    """
+    n = residuals.shape[0]
+    keep = int(np.ceil(np.clip(keep_fraction, 0.0, 1.0) * n))
+    if keep >= n:
+        return np.ones(n, dtype=bool)
+    mask = np.zeros(n, dtype=bool)
+    if keep > 0:
+        mask[np.argpartition(np.abs(residuals), keep - 1)[:keep]] = True
+    return mask
+
+
+def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
+                           max_fraction: float, sigma_multiplier: float = 3.0) -> float:
+    """Choose how many pairs to keep from the residual distribution itself.
+
+    Keeps the pairs within ``sigma_multiplier`` robust standard deviations (from the
+    median absolute residual, 1.4826 * MAD), clipped to [min_fraction, max_fraction]:
+    a clean overlap keeps nearly all pairs, a scene with moving people or a changed
+    door sheds the pairs that disagree.
+    """
+    if residuals.size == 0:
+        return max_fraction
+    abs_r = np.abs(residuals)
+    sigma = 1.4826 * float(np.median(abs_r))
+    if sigma <= 0.0:
+        return max_fraction
+    fraction = float(np.mean(abs_r <= sigma_multiplier * sigma))
+    return float(np.clip(fraction, min_fraction, max_fraction))

@@ -1,0 +1,125 @@
+"""Laser scans as plain data, and their conversion to 2D point sets.
+
+``LaserScan`` mirrors the fields of ``sensor_msgs/LaserScan`` without depending on
+ROS, so the core, the node and the replay harness share one representation.
+``ScanPoints`` is the matcher's view of a scan: finite points in the base frame in
+beam order, with a lazily built KD-tree and a cache for per-scan derived data
+(normals, curvature) so that each is computed once per scan even though a scan is
+first the current scan and then the reference of the next match.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from laser_odom.core import se2
+
+
+@dataclass
+class LaserScan:
+    """The fields of a ``sensor_msgs/LaserScan``, stamp in integer nanoseconds."""
+
+    stamp_ns: int
+    angle_min: float
+    angle_max: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    ranges: np.ndarray
+    intensities: np.ndarray | None = None
+    frame_id: str = 'laser'
+    time_increment: float = 0.0
+    scan_time: float = 0.0
+
+    @property
+    def stamp(self) -> float:
+        """Stamp in seconds."""
+        return self.stamp_ns * 1e-9
+
+
+@dataclass(frozen=True)
+class LaserMounting:
+    """Pose of the laser on the robot base (``base_frame`` <- laser ``frame_id``).
+
+    ``upside_down`` is a roll of pi about the laser's x axis: it mirrors the scan
+    (y -> -y in the laser frame) before the planar mounting pose is applied.
+    """
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+    upside_down: bool = False
+
+    @property
+    def pose(self) -> se2.Pose:
+        """Planar part of the mounting as an SE(2) pose."""
+        return se2.pose(self.x, self.y, self.yaw)
+
+    @property
+    def is_identity(self) -> bool:
+        """Tell whether the laser frame coincides with the base frame."""
+        return not self.upside_down and self.x == 0.0 and self.y == 0.0 and self.yaw == 0.0
+
+
+@dataclass(eq=False)
+class ScanPoints:
+    """Finite 2D points of one scan, in the base frame and in beam order.
+
+    ``beam_index`` holds each point's index in the original ``ranges`` array, so
+    matchers that need beam adjacency (PL-ICP) can tell true neighbours from points
+    that are adjacent only because invalid beams between them were dropped.
+    """
+
+    points: np.ndarray
+    beam_index: np.ndarray
+    ranges: np.ndarray
+    stamp_ns: int = 0
+    cache: dict[Any, Any] = field(default_factory=dict, repr=False)
+
+    def __len__(self) -> int:
+        """Return the number of points."""
+        return int(self.points.shape[0])
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """KD-tree over the points, built on first use and then reused."""
+        return cKDTree(self.points)
+
+
+def beam_angles(scan: LaserScan, count: int | None = None) -> np.ndarray:
+    """Return the angle of every beam: ``angle_min + i * angle_increment``.
+
+    Negative increments (scanners that sweep clockwise) give decreasing angles.
+    """
+    n = len(scan.ranges) if count is None else count
+    return scan.angle_min + np.arange(n, dtype=float) * scan.angle_increment
+
+
+def valid_range_mask(ranges: np.ndarray, range_min: float, range_max: float) -> np.ndarray:
+    """Return the readings that are finite and inside [range_min, range_max] (REP-117)."""
+    with np.errstate(invalid='ignore'):
+        return np.isfinite(ranges) & (ranges >= range_min) & (ranges <= range_max)
+
+
+def scan_to_points(scan: LaserScan, mounting: LaserMounting | None = None) -> ScanPoints:
+    """Convert a scan to finite 2D points in the base frame, vectorised.
+
+    NaN, inf and out-of-range readings are dropped; the surviving points keep beam
+    order and their original beam indices.
+    """
+    ranges = np.asarray(scan.ranges, dtype=float)
+    keep = valid_range_mask(ranges, scan.range_min, scan.range_max)
+    index = np.flatnonzero(keep)
+    r = ranges[index]
+    angles = scan.angle_min + index * scan.angle_increment
+    points = np.column_stack((r * np.cos(angles), r * np.sin(angles)))
+    if mounting is not None and not mounting.is_identity:
+        if mounting.upside_down:
+            points[:, 1] = -points[:, 1]
+        points = se2.transform_points(mounting.pose, points)
+    return ScanPoints(points=points, beam_index=index, ranges=r, stamp_ns=scan.stamp_ns)

@@ -1,0 +1,119 @@
+"""SE(2) algebra for planar poses stored as ``numpy`` arrays ``[x, y, theta]``.
+
+A pose ``a`` maps points from its own frame into its parent frame:
+``p_parent = R(theta) p + t``. Composition follows that convention, so
+``compose(world_T_a, a_T_b) == world_T_b``. Angles are radians (REP-103).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+Pose = np.ndarray
+"""A planar pose ``[x, y, theta]`` (float64, shape (3,))."""
+
+
+def wrap_angle(angle: float | np.ndarray) -> float | np.ndarray:
+    """Wrap an angle (or array of angles) into [-pi, pi)."""
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def pose(x: float = 0.0, y: float = 0.0, theta: float = 0.0) -> Pose:
+    """Build a pose array."""
+    return np.array([x, y, theta], dtype=float)
+
+
+def rotation(theta: float) -> np.ndarray:
+    """Return the 2x2 rotation matrix R(theta)."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def to_matrix(p: Pose) -> np.ndarray:
+    """Return the 3x3 homogeneous matrix of a pose."""
+    c, s = math.cos(p[2]), math.sin(p[2])
+    return np.array([[c, -s, p[0]], [s, c, p[1]], [0.0, 0.0, 1.0]])
+
+
+def from_matrix(m: np.ndarray) -> Pose:
+    """Return the pose of a 3x3 homogeneous (or 2x3) rigid transform matrix."""
+    return np.array([m[0, 2], m[1, 2], math.atan2(m[1, 0], m[0, 0])])
+
+
+def compose(a: Pose, b: Pose) -> Pose:
+    """Return ``a * b``: the pose b expressed in a's parent frame."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([
+        a[0] + c * b[0] - s * b[1],
+        a[1] + s * b[0] + c * b[1],
+        wrap_angle(a[2] + b[2]),
+    ])
+
+
+def inverse(a: Pose) -> Pose:
+    """Return ``a^-1``."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([
+        -c * a[0] - s * a[1],
+        s * a[0] - c * a[1],
+        wrap_angle(-a[2]),
+    ])
+
+
+def relative(a: Pose, b: Pose) -> Pose:
+    """Return ``a^-1 * b``: the pose of b seen from a (the motion from a to b)."""
+    return compose(inverse(a), b)
+
+
+def transform_points(p: Pose, points: np.ndarray) -> np.ndarray:
+    """Apply a pose to an (N, 2) array of points: ``R p_i + t``."""
+    c, s = math.cos(p[2]), math.sin(p[2])
+    out = np.empty_like(points, dtype=float)
+    out[:, 0] = c * points[:, 0] - s * points[:, 1] + p[0]
+    out[:, 1] = s * points[:, 0] + c * points[:, 1] + p[1]
+    return out
+
+
+def adjoint(p: Pose) -> np.ndarray:
+    """Return the 3x3 adjoint of a pose for ``[x, y, theta]`` tangent vectors.
+
+    With right-multiplied perturbations ``T exp(xi)``, ``Ad(T) xi`` is the same
+    perturbation applied on the left. It propagates covariance through composition.
+    """
+    c, s = math.cos(p[2]), math.sin(p[2])
+    return np.array([[c, -s, p[1]], [s, c, -p[0]], [0.0, 0.0, 1.0]])
+
+
+def compose_jacobians(a: Pose, b: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """Return the Jacobians of ``compose(a, b)`` with respect to a and to b.
+
+    Used for first-order covariance propagation of the integrated pose:
+    ``Sigma_ab = Ja Sigma_a Ja^T + Jb Sigma_b Jb^T`` (the classic planar
+    compounding of Smith, Self and Cheeseman).
+    """
+    c, s = math.cos(a[2]), math.sin(a[2])
+    ja = np.array([
+        [1.0, 0.0, -s * b[0] - c * b[1]],
+        [0.0, 1.0, c * b[0] - s * b[1]],
+        [0.0, 0.0, 1.0],
+    ])
+    jb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return ja, jb
+
+
+def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    """Return the quaternion ``(x, y, z, w)`` of a rotation by ``yaw`` about z."""
+    half = 0.5 * yaw
+    return 0.0, 0.0, math.sin(half), math.cos(half)
+
+
+def quaternion_to_yaw(x: float, y: float, z: float, w: float) -> float:
+    """Return the yaw (rotation about z, ZYX convention) of a quaternion."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def is_finite_pose(p: Pose) -> bool:
+    """Tell whether every component of a pose is finite."""
+    return bool(np.all(np.isfinite(p)))
