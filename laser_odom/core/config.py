@@ -7,8 +7,8 @@ and matcher settings live under ``<matcher>.<field>``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Any, Mapping
 
 from laser_odom.core.matchers import default_config, matcher_names, MatcherConfig
@@ -66,9 +66,10 @@ class AcceptanceConfig:
     rejected_motion: str = param(
         'predict', 'On a rejected match: predict (advance by the prior) or hold (no motion).',
         choices=('predict', 'hold'))
-    degeneracy_threshold: float = param(
-        1e-2, 'Directions whose match information, relative to the strongest, is '
-        'below this are degenerate and take the prediction.', 0.0, 1.0)
+    degeneracy_min_information: float = param(
+        100.0, 'A direction whose match information is below this [1/m^2; rotation '
+        'measured as the arc at the scan\'s RMS range] is degenerate (100 = a standard '
+        'deviation above 10 cm) and takes the prediction.', 0.0, 1e12)
 
 
 @dataclass

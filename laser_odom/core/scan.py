@@ -86,6 +86,13 @@ class ScanPoints:
         return int(self.points.shape[0])
 
     @cached_property
+    def length_scale(self) -> float:
+        """RMS distance of the points from the sensor [m]: how far a rotation moves them."""
+        if len(self) == 0:
+            return 1.0
+        return float(np.sqrt(np.mean(np.sum(np.square(self.points), axis=1))))
+
+    @cached_property
     def tree(self) -> cKDTree:
         """KD-tree over the points, built on first use and then reused."""
         return cKDTree(self.points)

@@ -12,15 +12,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.correspondences import nearest_neighbours
 from laser_odom.core.matchers.information import (
-    covariance_from_information, information_from_jacobians, point_to_point_jacobians,
+    covariance_from_information, information_from_jacobians, point_to_line_jacobians,
     residual_variance)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param
 from laser_odom.core.scan import ScanPoints
 
@@ -44,10 +46,40 @@ def align_svd(source: np.ndarray, target: np.ndarray,
 class IcpConfig(MatcherConfig):
     """Point-to-point ICP settings (defaults tuned on the benchmark datasets)."""
 
+    max_iterations: int = param(50, 'Iteration cap of one match.', 1, 500)
+    max_correspondence_distance: float = param(
+        0.3, 'Pairs farther apart than this [m] are not correspondences.', 0.01, 10.0)
     min_keep_fraction: float = param(
-        0.7, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0)
+        0.8, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0)
     max_keep_fraction: float = param(
-        0.95, 'Trimming: keep at most this fraction of the gated pairs.', 0.1, 1.0)
+        0.8, 'Trimming: keep at most this fraction of the gated pairs.', 0.1, 1.0)
+    reference_spacing: float = param(
+        0.01, 'Densify the reference scan along its surface to this point spacing [m] '
+        '(0 = off), so point-to-point pairs are not biased by beam sampling.', 0.0, 1.0)
+    max_densify_gap: float = param(
+        0.3, 'Only interpolate between neighbouring beams closer than this [m] (a larger '
+        'gap is a range discontinuity, not a surface).', 0.0, 10.0)
+
+
+def densify(scan: ScanPoints, spacing: float, max_gap: float) -> np.ndarray:
+    """Return the scan's points plus points interpolated along its surface.
+
+    Consecutive beams closer than ``max_gap`` are taken to lie on one surface and the
+    segment between them is filled every ``spacing`` metres. Point-to-point pairs then
+    land near the true surface point instead of the nearest beam sample, which removes
+    most of ICP's sampling bias (the reason PL-ICP uses lines instead, Censi 2008).
+    """
+    points = scan.points
+    if spacing <= 0.0 or len(points) < 2:
+        return points
+    segment = points[1:] - points[:-1]
+    length = np.hypot(segment[:, 0], segment[:, 1])
+    on_surface = (np.diff(scan.beam_index) == 1) & (length < max_gap)
+    inserted = np.where(on_surface, np.floor(length / spacing).astype(int), 0)
+    owner = np.repeat(np.arange(len(segment)), inserted)
+    rank = np.arange(int(inserted.sum())) - np.repeat(np.cumsum(inserted) - inserted, inserted)
+    fraction = (rank + 1.0) / (inserted[owner] + 1.0)
+    return np.vstack((points, points[:-1][owner] + segment[owner] * fraction[:, None]))
 
 
 @register
@@ -65,7 +97,11 @@ class IcpMatcher(ScanMatcher):
         estimate = np.array(initial_guess, dtype=float)
         if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
             return MatchResult.failure(estimate, reason='too few points')
-        tree = reference.tree
+        key = ('icp_dense', cfg.reference_spacing, cfg.max_densify_gap)
+        if key not in reference.cache:
+            dense = densify(reference, cfg.reference_spacing, cfg.max_densify_gap)
+            reference.cache[key] = (dense, cKDTree(dense))
+        target, tree = reference.cache[key]
         converged = False
         iterations = 0
         for iterations in range(1, cfg.max_iterations + 1):
@@ -76,7 +112,7 @@ class IcpMatcher(ScanMatcher):
             keep = adaptive_keep_fraction(
                 pairs.distance, cfg.min_keep_fraction, cfg.max_keep_fraction)
             pairs = pairs.subset(trimmed_mask(pairs.distance, keep))
-            updated = align_svd(current.points[pairs.current], reference.points[pairs.reference])
+            updated = align_svd(current.points[pairs.current], target[pairs.reference])
             step = se2.relative(estimate, updated)
             estimate = updated
             if self.converged_step(step):
@@ -84,15 +120,35 @@ class IcpMatcher(ScanMatcher):
                 break
         moved = se2.transform_points(estimate, current.points)
         pairs = nearest_neighbours(tree, moved, cfg.max_correspondence_distance)
-        residuals = moved[pairs.current] - reference.points[pairs.reference]
-        rotated = moved[pairs.current] - estimate[:2]
-        variance = residual_variance(residuals)
-        information = information_from_jacobians(
-            point_to_point_jacobians(rotated), None, variance)
+        information = surface_information(reference, moved, estimate, cfg)
+        kept = np.sort(pairs.distance)[:int(np.ceil(cfg.max_keep_fraction * len(pairs)))]
         return MatchResult(
             pose=estimate, converged=converged, iterations=iterations,
             inlier_ratio=len(pairs) / len(current),
-            residual=float(np.sqrt(np.mean(np.sum(residuals ** 2, axis=1)))) if len(pairs)
-            else float('inf'),
+            residual=float(np.sqrt(np.mean(kept ** 2))) if kept.size else float('inf'),
             information=information, covariance=covariance_from_information(information),
             correspondences=len(pairs))
+
+
+def surface_information(reference: ScanPoints, moved: np.ndarray, estimate: se2.Pose,
+                        cfg: IcpConfig) -> np.ndarray:
+    """Information of the final estimate under the point-to-surface approximation.
+
+    The point-to-point Hessian claims information along walls that the scene does not
+    provide (a point can slide along a wall at almost no cost once pairs are
+    re-chosen), so a corridor would look well constrained. Projecting each residual
+    on the reference surface normal gives the information the geometry really holds
+    (as in Censi, "An accurate closed-form estimate of ICP's covariance", ICRA 2007).
+    """
+    surface = estimate_normals(reference)
+    pairs = nearest_neighbours(reference.tree, moved, cfg.max_correspondence_distance)
+    pairs = pairs.subset(surface.valid[pairs.reference])
+    if len(pairs) < 3:
+        return np.zeros((3, 3))
+    normals = surface.normals[pairs.reference]
+    offsets = moved[pairs.current] - reference.points[pairs.reference]
+    residuals = np.einsum('nd,nd->n', normals, offsets)
+    keep = trimmed_mask(residuals, cfg.max_keep_fraction)
+    jacobians = point_to_line_jacobians(moved[pairs.current][keep] - estimate[:2],
+                                        normals[keep])
+    return information_from_jacobians(jacobians, None, residual_variance(residuals[keep]))

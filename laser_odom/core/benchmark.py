@@ -1,0 +1,132 @@
+"""Score a matcher on a dataset: accuracy against the reference and time per scan.
+
+The benchmark command, the real-data tests and the closing notes all use
+:func:`benchmark_run`, so a figure in a note is the figure a test asserts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+import math
+from typing import Callable
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.matchers import default_config
+from laser_odom.core.metrics import evaluate
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.runner import run_pipeline
+from laser_odom.core.simulation import LaserModel, simulate
+from laser_odom.core.trajectory import Dataset, Trajectory
+
+BENCH_PRIORS = {'zero': 'none', 'constant_velocity': 'constant_velocity', 'odom': 'odom'}
+"""Benchmark prior names -> the pipeline's ``prior`` parameter."""
+
+WHEEL_ODOMETRY = 'wheel_odometry'
+"""Pseudo-matcher name of the row that scores raw wheel odometry alone."""
+
+WARMUP_SCANS = 10
+"""Scans at the start of a run left out of the timing statistics (caches, imports)."""
+
+
+@dataclass(frozen=True)
+class SimulatedSpec:
+    """A simulated benchmark dataset: world, beam count, field of view, duration."""
+
+    world: str
+    beams: int
+    fov_deg: float
+    duration: float = 60.0
+    seed: int = 1
+
+    def generate(self, name: str) -> Dataset:
+        """Simulate the dataset (deterministic for the spec)."""
+        laser = LaserModel(beams=self.beams, fov=math.radians(self.fov_deg))
+        dataset = simulate(self.world, duration=self.duration, laser=laser, seed=self.seed)
+        dataset.name = name
+        return dataset
+
+
+SIMULATED = {
+    'sim-office-360': SimulatedSpec('office', 360, 360.0),
+    'sim-corridor-360': SimulatedSpec('corridor', 360, 360.0),
+    'sim-cluttered-360': SimulatedSpec('cluttered', 360, 360.0),
+    'sim-office-1081': SimulatedSpec('office', 1081, 270.0),
+    'sim-cluttered-1081': SimulatedSpec('cluttered', 1081, 270.0),
+}
+"""Simulated datasets of the benchmark: corridor-heavy and cluttered, 360 and 1081 beams."""
+
+
+@dataclass
+class BenchRow:
+    """One benchmark row: a dataset x matcher x prior and its figures."""
+
+    dataset: str
+    matcher: str
+    prior: str
+    beams: int
+    scans: int
+    steps: int
+    rpe_trans_mean: float
+    rpe_trans_rms: float
+    rpe_rot_mean: float
+    rpe_rot_rms: float
+    ate: float
+    failed: int
+    rejected: int
+    median_ms: float
+    p95_ms: float
+
+    def as_dict(self) -> dict:
+        """Return the row as a JSON-friendly dict."""
+        return asdict(self)
+
+
+def _row(dataset: Dataset, matcher: str, prior: str, estimate: Trajectory,
+         times: np.ndarray, rejected: int) -> BenchRow:
+    """Score an estimated trajectory against the dataset's reference."""
+    errors = evaluate(estimate, dataset.reference)
+    timed = times[WARMUP_SCANS:] if times.size > 2 * WARMUP_SCANS else times
+    median_ms = float(np.median(timed) * 1e3) if timed.size else float('nan')
+    p95_ms = float(np.percentile(timed, 95) * 1e3) if timed.size else float('nan')
+    beams = len(dataset.scans[0].ranges) if dataset.scans else 0
+    return BenchRow(dataset.name, matcher, prior, beams, len(dataset.scans), errors.steps,
+                    errors.rpe_trans_mean, errors.rpe_trans_rms, errors.rpe_rot_mean,
+                    errors.rpe_rot_rms, errors.ate_rms, errors.failed_steps, rejected,
+                    median_ms, p95_ms)
+
+
+def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocity',
+                  progress: Callable[[int], None] | None = None,
+                  config: PipelineConfig | None = None) -> BenchRow:
+    """Run the pipeline with ``matcher`` and bench ``prior`` over a dataset and score it."""
+    if config is None:
+        config = PipelineConfig(matcher=matcher, matcher_config=default_config(matcher))
+    config.motion.prior = BENCH_PRIORS[prior]
+    pipeline = OdometryPipeline(config)
+    result = run_pipeline(pipeline, dataset.scans, odometry=dataset.odometry,
+                          progress=progress)
+    return _row(dataset, matcher, prior, result.trajectory, result.processing_times,
+                result.counters['rejected'])
+
+
+def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:
+    """Return raw wheel odometry at the scan stamps, relative to its first pose."""
+    stamps, poses = [], []
+    origin = None
+    for scan in dataset.scans:
+        pose = dataset.odometry.interpolate(scan.stamp_ns)
+        if pose is None:
+            continue
+        origin = pose if origin is None else origin
+        stamps.append(scan.stamp_ns)
+        poses.append(se2.relative(origin, pose))
+    return Trajectory(np.array(stamps, dtype=np.int64), np.array(poses).reshape(-1, 3))
+
+
+def wheel_odometry_row(dataset: Dataset) -> BenchRow:
+    """Score raw wheel odometry alone: the do-nothing baseline for every matcher."""
+    return _row(dataset, WHEEL_ODOMETRY, 'odom', wheel_odometry_trajectory(dataset),
+                np.zeros(0), 0)

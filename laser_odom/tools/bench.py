@@ -1,0 +1,186 @@
+"""``laser_odom_bench``: score every matcher for accuracy and speed in one table.
+
+Rows are dataset x matcher x prior. Datasets are the simulated ones (generated here)
+plus every real dataset found under ``--data-dir``. Timing is taken inside this process
+around the whole per-scan work of the pipeline (conversion, tree build, matching),
+after a warm-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+import platform
+import sys
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+
+from laser_odom.core.benchmark import (
+    BENCH_PRIORS, benchmark_run, BenchRow, SIMULATED, wheel_odometry_row)
+from laser_odom.core.datasets import DatasetError, discover_datasets, load_dataset
+from laser_odom.core.matchers import matcher_names
+from laser_odom.core.trajectory import Dataset
+
+DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
+"""``../shared/data`` beside a source checkout, the project's real logs."""
+
+COLUMNS = [
+    ('dataset', 18, None, 'dataset'), ('matcher', 14, None, 'matcher'),
+    ('prior', 17, None, 'prior'), ('beams', 5, None, 'beams'), ('steps', 5, None, 'steps'),
+    ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
+    ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
+    ('ate', 7, 3, 'ATE'), ('failed', 6, None, 'failed'),
+    ('median_ms', 7, 2, 'med ms'), ('p95_ms', 7, 2, 'p95 ms'),
+]
+"""Table columns: row field, width, decimals (None: as is), title."""
+
+
+def cpu_name() -> str:
+    """Return the CPU model name (Linux), or the platform's processor string."""
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or 'unknown CPU'
+
+
+def machine_line() -> str:
+    """Return the line that says what machine the timings come from."""
+    return (f'# {cpu_name()}, {os.cpu_count()} cores; Python {platform.python_version()}, '
+            f'numpy {np.__version__}; timings: median/p95 ms per scan after '
+            'a warm-up, whole per-scan work in one process')
+
+
+def _cell(value: object, width: int, decimals: int | None) -> str:
+    """Format one table cell: text left-aligned, numbers right-aligned."""
+    if isinstance(value, str):
+        return f'{value:<{width}}'
+    if decimals is None:
+        return f'{value:>{width}}'
+    return f'{value:>{width}.{decimals}f}'
+
+
+def format_table(rows: Sequence[BenchRow]) -> str:
+    """Return the rows as a fixed-width text table with units in the legend."""
+    lines = [' '.join(_cell(title, width, None) if i < 3 else f'{title:>{width}}'
+                      for i, (_, width, _, title) in enumerate(COLUMNS))]
+    for row in rows:
+        values = row.as_dict()
+        lines.append(' '.join(_cell(values[key], width, decimals)
+                              for key, width, decimals, _ in COLUMNS))
+    lines.append('# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after '
+                 'SE(2) alignment; failed: RPE > 0.5 m or > 10 deg')
+    return '\n'.join(lines)
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr, redrawn at most every 0.2 s."""
+
+    def __init__(self, label: str, total: int, stream=sys.stderr) -> None:
+        """Start a bar for ``total`` items."""
+        self.label, self.total, self.stream = label, max(total, 1), stream
+        self.last_draw = 0.0
+
+    def __call__(self, done: int) -> None:
+        """Redraw with ``done`` items finished."""
+        now = time.monotonic()
+        if now - self.last_draw < 0.2 and done < self.total:
+            return
+        self.last_draw = now
+        filled = int(30 * done / self.total)
+        self.stream.write(f'\r{self.label:<52} [{"#" * filled}{"." * (30 - filled)}] '
+                          f'{done}/{self.total}')
+        if done >= self.total:
+            self.stream.write('\n')
+        self.stream.flush()
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Parse the command line."""
+    parser = argparse.ArgumentParser(
+        prog='laser_odom_bench', description='Score matchers on simulated and real datasets.')
+    parser.add_argument('--matchers', default=','.join(matcher_names()),
+                        help='comma-separated matcher names (default: all)')
+    parser.add_argument('--datasets', default=None,
+                        help='comma-separated dataset names (default: all simulated and '
+                             'every real dataset found)')
+    parser.add_argument('--priors', default=','.join(BENCH_PRIORS),
+                        help='comma-separated priors: zero, constant_velocity, odom')
+    parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA_DIR,
+                        help='folder holding the real logs (default: ../shared/data)')
+    parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
+    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    return parser.parse_args(argv)
+
+
+def _split(text: str, valid: Sequence[str], what: str) -> list[str]:
+    """Split a comma list and check every item is valid."""
+    items = [item.strip() for item in text.split(',') if item.strip()]
+    bad = [item for item in items if item not in valid]
+    if bad or not items:
+        raise ValueError(f'unknown {what}: {", ".join(bad) or "(none given)"}; '
+                         f'valid: {", ".join(valid)}')
+    return items
+
+
+def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
+    """Return name -> loader for every simulated and every real dataset found."""
+    loaders: dict[str, Callable[[], Dataset]] = {
+        name: (lambda name=name, spec=spec: spec.generate(name))
+        for name, spec in SIMULATED.items()}
+    if data_dir.is_dir():
+        for name, path in discover_datasets(data_dir).items():
+            loaders[name] = lambda path=path, name=name: load_dataset(path, name=name)
+    return loaders
+
+
+def run(args: argparse.Namespace) -> list[BenchRow]:
+    """Run every selected dataset x matcher x prior and return the rows."""
+    loaders = dataset_loaders(args.data_dir)
+    matchers = _split(args.matchers, matcher_names(), 'matcher')
+    priors = _split(args.priors, list(BENCH_PRIORS), 'prior')
+    names = _split(args.datasets, list(loaders), 'dataset') if args.datasets else list(loaders)
+    rows: list[BenchRow] = []
+    for name in names:
+        dataset = loaders[name]()
+        has_odometry = len(dataset.odometry) > 0
+        if 'odom' in priors and has_odometry:
+            rows.append(wheel_odometry_row(dataset))
+        for matcher in matchers:
+            for prior in priors:
+                if prior == 'odom' and not has_odometry:
+                    continue
+                label = f'{name} {matcher} {prior}'
+                bar = None if args.no_progress else ProgressBar(label, len(dataset.scans))
+                rows.append(benchmark_run(dataset, matcher, prior, progress=bar))
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark and print its table; 2 on a usage or data error."""
+    args = parse_args(argv)
+    try:
+        rows = run(args)
+    except (DatasetError, ValueError) as err:
+        print(f'laser_odom_bench: error: {err}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('laser_odom_bench: interrupted', file=sys.stderr)
+        return 130
+    print(machine_line())
+    print(format_table(rows))
+    if args.json is not None:
+        payload = {'machine': machine_line().lstrip('# '),
+                   'rows': [row.as_dict() for row in rows]}
+        args.json.write_text(json.dumps(payload, indent=2) + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,69 @@
+"""SE(2) algebra: composition, inverse, matrices, quaternions, covariance Jacobians."""
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+
+RNG = np.random.default_rng(7)
+
+
+def random_pose() -> np.ndarray:
+    return np.array([RNG.uniform(-5, 5), RNG.uniform(-5, 5), RNG.uniform(-math.pi, math.pi)])
+
+
+@pytest.mark.parametrize('trial', range(20))
+def test_compose_matches_matrix_product(trial):
+    a, b = random_pose(), random_pose()
+    expected = se2.from_matrix(se2.to_matrix(a) @ se2.to_matrix(b))
+    got = se2.compose(a, b)
+    assert np.allclose(got[:2], expected[:2])
+    assert abs(se2.wrap_angle(got[2] - expected[2])) < 1e-12
+
+
+def test_inverse_and_relative():
+    a, b = random_pose(), random_pose()
+    assert np.allclose(se2.compose(a, se2.inverse(a)), 0.0, atol=1e-12)
+    assert np.allclose(se2.compose(a, se2.relative(a, b)), b)
+
+
+def test_transform_points_matches_matrix():
+    p = random_pose()
+    pts = RNG.normal(size=(50, 2))
+    hom = np.column_stack((pts, np.ones(50))) @ se2.to_matrix(p).T
+    assert np.allclose(se2.transform_points(p, pts), hom[:, :2])
+
+
+@pytest.mark.parametrize('angle', [0.0, 3.0, -3.1, 7.5, -20.0, math.pi])
+def test_wrap_angle_range(angle):
+    wrapped = se2.wrap_angle(angle)
+    assert -math.pi <= wrapped < math.pi
+    assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-12)
+    assert math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-12)
+
+
+def test_wrap_angle_array():
+    wrapped = se2.wrap_angle(np.array([4.0, -4.0]))
+    assert np.allclose(wrapped, [4.0 - 2 * math.pi, -4.0 + 2 * math.pi])
+
+
+@pytest.mark.parametrize('yaw', [0.0, 0.5, -2.0, 3.1])
+def test_quaternion_round_trip(yaw):
+    q = se2.yaw_to_quaternion(yaw)
+    assert math.isclose(sum(c * c for c in q), 1.0)
+    assert math.isclose(se2.quaternion_to_yaw(*q), yaw, abs_tol=1e-12)
+
+
+def test_compose_jacobians_match_finite_differences():
+    a, b = random_pose(), random_pose()
+    ja, jb = se2.compose_jacobians(a, b)
+    eps = 1e-7
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = eps
+        da = (se2.compose(a + d, b) - se2.compose(a - d, b)) / (2 * eps)
+        db = (se2.compose(a, b + d) - se2.compose(a, b - d)) / (2 * eps)
+        assert np.allclose(da, ja[:, k], atol=1e-6)
+        assert np.allclose(db, jb[:, k], atol=1e-6)
