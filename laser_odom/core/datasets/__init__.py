@@ -1,0 +1,17 @@
+"""Dataset importers (ROS-free): CARMEN logs and MATLAB scan files to :class:`Dataset`.
+
+Use :func:`load_dataset` for any file and :func:`discover_datasets` to find the real
+benchmark logs (``mit-csail``, ``fr079``, ``intel``) under a data directory. Loaders
+raise :class:`DatasetError` (a ``ValueError``) with a ``file:line: what is wrong``
+message; malformed lines are skipped and logged on the ``laser_odom.core.datasets``
+logger unless ``strict=True``.
+"""
+
+from laser_odom.core.datasets.carmen import load_carmen
+from laser_odom.core.datasets.common import DatasetError
+from laser_odom.core.datasets.loader import (
+    dataset_format, dataset_name, discover_datasets, KNOWN_DATASETS, load_dataset)
+from laser_odom.core.datasets.matlab import load_mat
+
+__all__ = ['DatasetError', 'KNOWN_DATASETS', 'dataset_format', 'dataset_name',
+           'discover_datasets', 'load_carmen', 'load_dataset', 'load_mat']

@@ -1,0 +1,118 @@
+"""The odometry pipeline: prediction, integration, stamps, keyframes, acceptance."""
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.metrics import evaluate
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.runner import run_pipeline
+from laser_odom.core.scan import LaserScan
+from laser_odom.core.simulation import simulate
+
+
+@pytest.fixture(scope='module')
+def office_run():
+    """Twenty seconds in the office world: 200 scans with ground truth."""
+    return simulate('office', duration=20.0, seed=3)
+
+
+def replace_stamp(scan: LaserScan, stamp_ns: int) -> LaserScan:
+    return LaserScan(stamp_ns, scan.angle_min, scan.angle_max, scan.angle_increment,
+                     scan.range_min, scan.range_max, scan.ranges, scan.intensities,
+                     scan.frame_id)
+
+
+def test_tracks_ground_truth_and_reports_finite_spd_covariance(office_run):
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    result = run_pipeline(pipeline, office_run.scans)
+    assert result.processed == len(office_run.scans)
+    errors = evaluate(result.trajectory, office_run.reference)
+    assert errors.ate_rms < 0.05
+    assert errors.rpe_trans_mean < 0.005
+    for covariance in result.pose_covariances[1:]:
+        assert np.all(np.isfinite(covariance))
+        assert np.allclose(covariance, covariance.T)
+        assert np.all(np.linalg.eigvalsh(covariance) > 0.0)
+    # Pose uncertainty grows as the odometry integrates.
+    assert np.trace(result.pose_covariances[-1]) > np.trace(result.pose_covariances[10])
+
+
+def test_twist_is_in_the_base_frame(office_run):
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    estimates = [pipeline.process(scan) for scan in office_run.scans[:30]]
+    truth = office_run.reference.poses
+    dt = (office_run.scans[29].stamp_ns - office_run.scans[28].stamp_ns) * 1e-9
+    expected = se2.relative(truth[28], truth[29]) / dt
+    assert np.allclose(estimates[29].twist, expected, atol=0.05)
+    assert estimates[29].twist_covariance.shape == (3, 3)
+
+
+def test_constant_velocity_prediction_is_the_initial_guess(office_run):
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    for scan in office_run.scans[:10]:
+        pipeline.process(scan)
+    velocity = pipeline.motion.velocity
+    assert np.allclose(pipeline.motion.predict(0.1), velocity * 0.1)
+    none = OdometryPipeline(PipelineConfig(matcher='icp'))
+    none.config.motion.prior = 'none'
+    assert np.allclose(none.motion.predict(0.1), 0.0)
+
+
+def test_duplicate_stamp_is_skipped_and_time_jump_back_resets(office_run):
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    scans = office_run.scans
+    for scan in scans[:20]:
+        pipeline.process(scan)
+    assert pipeline.process(scans[19]) is None
+    assert pipeline.counters['duplicate_stamp'] == 1
+    moved = pipeline.pose.copy()
+    assert np.hypot(moved[0], moved[1]) > 0.2
+    restarted = pipeline.process(scans[0])
+    assert restarted.status == 'initialized'
+    assert pipeline.counters['time_jump_back'] == 1
+    assert np.allclose(restarted.pose, 0.0)
+
+
+def test_scan_gap_drops_the_prior(office_run):
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    for scan in office_run.scans[:10]:
+        pipeline.process(scan)
+    late = replace_stamp(office_run.scans[10], office_run.scans[9].stamp_ns + int(5e9))
+    pipeline.process(late)
+    assert pipeline.counters['scan_gap'] == 1
+
+
+def test_keyframes_hold_the_reference_while_the_robot_stands_still(office_run):
+    config = PipelineConfig(matcher='icp')
+    config.keyframes.keyframe_distance = 0.5
+    config.keyframes.keyframe_angle = math.radians(20.0)
+    pipeline = OdometryPipeline(config)
+    first = office_run.scans[0]
+    pipeline.process(first)
+    keyframe = pipeline.keyframe
+    rng = np.random.default_rng(0)
+    for k in range(1, 50):
+        ranges = first.ranges + rng.normal(0.0, 0.01, first.ranges.shape)
+        still = LaserScan(first.stamp_ns + k * 100_000_000, first.angle_min,
+                          first.angle_max, first.angle_increment, first.range_min,
+                          first.range_max, ranges)
+        estimate = pipeline.process(still)
+    assert pipeline.keyframe is keyframe
+    # Matching against one keyframe does not random-walk: the error stays at one match's.
+    assert np.hypot(*estimate.pose[:2]) < 0.005
+
+
+def test_rejected_match_advances_by_the_prediction(office_run):
+    config = PipelineConfig(matcher='icp')
+    config.acceptance.min_inlier_ratio = 1.0  # nothing can pass
+    pipeline = OdometryPipeline(config)
+    pipeline.process(office_run.scans[0])
+    pipeline.motion.velocity = np.array([0.5, 0.0, 0.0])
+    estimate = pipeline.process(office_run.scans[1])
+    assert estimate.status == 'rejected'
+    assert np.allclose(estimate.pose, [0.05, 0.0, 0.0])
+    assert estimate.pose_covariance[0, 0] >= 0.25
