@@ -68,7 +68,7 @@ class AcceptanceConfig:
         choices=('predict', 'hold'))
     degeneracy_min_information: float = param(
         100.0, 'A direction whose match information is below this [1/m^2; rotation '
-        'measured as the arc at the scan\'s RMS range] is degenerate (100 = a standard '
+        "measured as the arc at the scan's RMS range] is degenerate (100 = a standard "
         'deviation above 10 cm) and takes the prediction.', 0.0, 1e12)
 
 

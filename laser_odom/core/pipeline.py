@@ -7,19 +7,20 @@ the match (acceptance, degeneracy), then integrate pose, twist and covariance.
 
 from __future__ import annotations
 
-import time
 from collections import Counter, deque
 from dataclasses import dataclass
+import time
 
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
-from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.acceptance import judge_match
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
 from laser_odom.core.scan import LaserScan, ScanPoints
-from laser_odom.core.validation import ScanValidator
+from laser_odom.core.validation import REJECTIONS, ScanValidator
 
 TIMING_WINDOW = 1000
 """Number of recent per-scan processing times kept for statistics."""
@@ -48,15 +49,20 @@ class OdometryPipeline:
     """Scan-to-scan (or scan-to-keyframe) laser odometry, independent of ROS."""
 
     def __init__(self, config: PipelineConfig | None = None,
-                 matcher: ScanMatcher | None = None) -> None:
-        """Create the pipeline; the matcher defaults to ``config.matcher``."""
+                 matcher: ScanMatcher | None = None, events: EventLog | None = None) -> None:
+        """Create the pipeline; the matcher defaults to ``config.matcher``.
+
+        ``events`` receives counted, throttled warnings about bad input and failed
+        matches (default: the ``laser_odom`` Python logger).
+        """
         self.config = config if config is not None else PipelineConfig()
         if matcher is None:
             matcher = matcher_class(self.config.matcher)(self.config.resolved_matcher_config())
         self.matcher = matcher
-        self.validator = ScanValidator(self.config.scan, self.config.mounting)
+        self.events = events if events is not None else EventLog()
+        self.counters: Counter[str] = self.events.counters
+        self.validator = ScanValidator(self.config.scan, self.config.mounting, self.events)
         self.motion = MotionModel(self.config.motion)
-        self.counters: Counter[str] = Counter()
         self.processing_times: deque[float] = deque(maxlen=TIMING_WINDOW)
         self.reset()
 
@@ -77,6 +83,26 @@ class OdometryPipeline:
         self.config.matcher = matcher.name
         self.config.matcher_config = matcher.config
 
+    def configure(self, config: PipelineConfig) -> None:
+        """Apply new settings from the next scan on, keeping the pose (live reconfiguration).
+
+        A new matcher or matcher setting replaces the matcher (:meth:`set_matcher`). A new
+        laser mounting changes every base-frame point, so the reference scan is dropped and
+        integration restarts from the current pose; other settings keep the reference.
+        """
+        mounting_changed = config.mounting != self.config.mounting
+        matcher_config = config.resolved_matcher_config()
+        if config.matcher != self.matcher.name or matcher_config != self.matcher.config:
+            matcher = matcher_class(config.matcher)(matcher_config)
+        else:
+            matcher = self.matcher
+        self.config = config
+        self.set_matcher(matcher)
+        self.validator = ScanValidator(config.scan, config.mounting, self.events)
+        self.motion.config = config.motion
+        if mounting_changed:
+            self.reset(self.pose, self.pose_covariance)
+
     def process(self, scan: LaserScan, prior_step: se2.Pose | None = None,
                 prior_yaw: float | None = None) -> OdometryEstimate | None:
         """Process one scan; return the new odometry, or None if the scan was skipped.
@@ -89,7 +115,8 @@ class OdometryPipeline:
         self.counters['scans_in'] += 1
         current, reason = self.validator.check(scan)
         if current is None:
-            self.counters[reason] += 1
+            self.events.warn(reason, f'scan at t={scan.stamp_ns * 1e-9:.3f} skipped: '
+                             f'{REJECTIONS[reason]}')
             return None
         dt = self._elapsed(scan.stamp_ns)
         if dt is None:
@@ -109,10 +136,13 @@ class OdometryPipeline:
         """Return seconds since the last processed scan; handle repeats and time jumps."""
         last = self.last_stamp_ns
         if last is not None and stamp_ns == last:
-            self.counters['duplicate_stamp'] += 1
+            self.events.warn('duplicate_stamp', f'scan at t={stamp_ns * 1e-9:.3f} skipped: '
+                             'same stamp as the previous scan')
             return None
         if last is not None and stamp_ns < last:
-            self.counters['time_jump_back'] += 1
+            self.events.warn('time_jump_back', f'scan stamp t={stamp_ns * 1e-9:.3f} is '
+                             f'earlier than the previous t={last * 1e-9:.3f} (bag loop or '
+                             'restarted clock): odometry reset to the origin')
             self.reset()
             last = None
         self.last_stamp_ns = stamp_ns
@@ -128,8 +158,15 @@ class OdometryPipeline:
                   stamp_ns: int) -> OdometryEstimate:
         """Match against the keyframe, judge the match and integrate the step."""
         guess = se2.relative(self.keyframe_pose, se2.compose(self.pose, guess_step))
-        match = self.matcher.match(self.keyframe, current, guess)
-        verdict = judge_match(match, guess, self.config.acceptance)
+        match = self._match(current, guess)
+        verdict = judge_match(match, guess, self.config.acceptance, current.length_scale)
+        if verdict.status == 'rejected':
+            reason = match.extra.get('rejection', 'unknown')
+            action = ('advancing by the prediction'
+                      if self.config.acceptance.rejected_motion == 'predict'
+                      else 'holding the pose')
+            self.events.warn('rejected_' + reason, f'match at t={stamp_ns * 1e-9:.3f} '
+                             f'rejected ({reason}); {action}')
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         ja, jb = se2.compose_jacobians(self.keyframe_pose, verdict.pose)
         new_covariance = (ja @ self.keyframe_covariance @ ja.T
@@ -144,6 +181,25 @@ class OdometryPipeline:
         twist_cov = step_covariance / (dt * dt) if dt > 0 else step_covariance * 1e6
         return OdometryEstimate(stamp_ns, new_pose, self.pose_covariance.copy(), twist,
                                 twist_cov, verdict.status, match)
+
+    def _match(self, current: ScanPoints, guess: se2.Pose) -> MatchResult:
+        """Run the matcher; an internal error becomes a failed match, never a crash.
+
+        Odometry must keep running on input nobody foresaw; the error is counted as
+        ``matcher_error`` and said (throttled) so that it gets reported and fixed.
+        The matcher's ``covariance_scale`` calibration is applied here, once for all.
+        """
+        try:
+            match = self.matcher.match(self.keyframe, current, guess)
+        except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as error:
+            self.events.warn('matcher_error', f'{self.matcher.name} failed on a scan: '
+                             f'{error!r}')
+            return MatchResult.failure(guess, reason='matcher_error')
+        scale = self.matcher.config.covariance_scale
+        if scale != 1.0:
+            match.covariance = match.covariance * scale
+            match.information = match.information / scale
+        return match
 
     def _keyframe_expired(self, keyframe_to_current: se2.Pose) -> bool:
         """Tell whether the current scan becomes the new reference."""

@@ -32,6 +32,10 @@ class MatcherConfig:
         1e-5, '...and rotates it less than this [rad].', 0.0, 1.0)
     min_correspondences: int = param(
         10, 'A match with fewer correspondences than this fails.', 3, 100000)
+    covariance_scale: float = param(
+        1.0, 'Factor on the match covariance from the residuals (inflation calibrated so '
+        'that the normalised estimation error squared on simulated runs is about 3).',
+        0.01, 1000.0)
 
 
 @dataclass

@@ -52,6 +52,14 @@ class IcpConfig(MatcherConfig):
 
     max_iterations: int = param(
         40, 'Iteration cap of each phase (beam samples, then densified surface).', 1, 500)
+    convergence_translation: float = param(
+        1e-4, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
+    convergence_rotation: float = param(
+        1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
+    covariance_scale: float = param(
+        5.0, 'Factor on the match covariance from the residuals (inflation calibrated so '
+        'that the normalised estimation error squared on simulated runs is about 3).',
+        0.01, 1000.0)
     max_correspondence_distance: float = param(
         0.3, 'Pairs farther apart than this [m] are not correspondences.', 0.01, 10.0)
     min_keep_fraction: float = param(

@@ -1,0 +1,1 @@
+"""Command-line programs: replay, simulate, convert and bench."""
