@@ -31,6 +31,10 @@ ACCELERATION_COSINE = float(np.cos(np.radians(10.0)))
 """Successive steps closer than 10 deg in direction count as one consistent creep."""
 
 
+MAX_DENSE_POINTS = 20000
+"""Upper bound on the points a densified reference adds (bounds time on huge scans)."""
+
+
 def align_svd(source: np.ndarray, target: np.ndarray,
               weights: np.ndarray | None = None) -> se2.Pose:
     """Return the rigid pose minimising ``sum w_i |R s_i + t - q_i|^2`` (Arun et al.)."""
@@ -81,6 +85,7 @@ def densify(scan: ScanPoints, spacing: float, max_gap: float) -> np.ndarray:
     segment between them is filled every ``spacing`` metres. Point-to-point pairs then
     land near the true surface point instead of the nearest beam sample, which removes
     most of ICP's sampling bias (the reason PL-ICP uses lines instead, Censi 2008).
+    The spacing widens if the surface would need more than ``MAX_DENSE_POINTS``.
     """
     points = scan.points
     if spacing <= 0.0 or len(points) < 2:
@@ -88,6 +93,7 @@ def densify(scan: ScanPoints, spacing: float, max_gap: float) -> np.ndarray:
     segment = points[1:] - points[:-1]
     length = np.hypot(segment[:, 0], segment[:, 1])
     on_surface = (np.diff(scan.beam_index) == 1) & (length < max_gap)
+    spacing = max(spacing, float(length[on_surface].sum()) / MAX_DENSE_POINTS)
     inserted = np.where(on_surface, np.ceil(length / spacing - 1e-9).astype(int) - 1, 0)
     owner = np.repeat(np.arange(len(segment)), inserted)
     rank = np.arange(int(inserted.sum())) - np.repeat(np.cumsum(inserted) - inserted, inserted)
@@ -115,12 +121,16 @@ class IcpMatcher(ScanMatcher):
         # ``max_iterations`` caps each of the two phases.
         iterations = 0
         converged = False
-        for target, tree in ((reference.points, reference.tree),
-                             self._dense_reference(reference)):
+        phases = (lambda: (reference.points, reference.tree),
+                  lambda: self._dense_reference(reference))
+        for phase in phases:
+            target, tree = phase()
             estimate, used, converged = self._iterate(target, tree, current, estimate)
             iterations += used
             if estimate is None:
                 return MatchResult.failure(initial_guess, iterations, reason='too few pairs')
+            if not converged:
+                break  # the coarse phase did not settle: refining would not help
         moved = se2.transform_points(estimate, current.points)
         pairs = nearest_neighbours(tree, moved, cfg.max_correspondence_distance)
         if len(pairs) < cfg.min_correspondences:

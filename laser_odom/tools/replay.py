@@ -1,0 +1,230 @@
+"""``laser_odom_replay BAG``: run the odometry over a recorded bag, offline or through the node.
+
+By default the scans are fed in-process through the same
+:class:`~laser_odom.core.pipeline.OdometryPipeline` the node runs, with the node's own
+parameter file (``--params-file``) and the same prior buffers
+(:mod:`laser_odom.core.priors`). With ``--live`` they are published over DDS to a
+running ``laser_odom_node`` instead, one at a time, and its ``odom`` answers are
+recorded (see :mod:`laser_odom.tools.replay_live`).
+
+Outputs: ``--tum`` (one line per processed scan, written atomically), ``--output-bag``
+(``/odom`` with covariance and ``/pose``), and a summary; ``--reference`` adds ATE and
+RPE (:mod:`laser_odom.core.metrics`). A damaged bag is replayed up to the damage, the
+outputs are written, and the exit code is 2. Exit codes: 0 ok, 1 runtime failure,
+2 input error (missing or unreadable bag, no scan topic, bad params file, damaged bag).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import sys
+from typing import Any, Iterator
+
+import numpy as np
+
+from laser_odom.core.config import pipeline_config_from_params, PRIORS
+from laser_odom.core.matchers import matcher_names
+from laser_odom.core.params import ParameterError
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.priors import (
+    external_prior, ImuBuffer, OdometryBuffer, prior_config_from_params, PriorConfig)
+from laser_odom.core.scan import LaserScan
+from laser_odom.core.trajectory import Trajectory
+from laser_odom.io.bag_reader import (
+    BagError, BagReader, BagTruncatedError, ImuSamples, LASER_SCAN)
+from laser_odom.io.errors import BagWriteError, OutputExistsError
+from laser_odom.io.params_file import load_node_params, ParamsFileError
+from laser_odom.tools.replay_report import (
+    print_summary, ReplayError, ReplayRecord, write_outputs)
+
+PROG = 'laser_odom_replay'
+PROGRESS_EVERY = 500
+"""Scans between two progress lines (unless --quiet)."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line parser."""
+    p = argparse.ArgumentParser(
+        prog=PROG, description='Run the laser odometry over the scans of a recorded bag, '
+        'in-process or (--live) through a running laser_odom_node; write the trajectory '
+        'as TUM and/or a bag, and score it against a reference.')
+    p.add_argument('bag', help='ROS 2 bag directory, .db3/.mcap file, or ROS 1 .bag file')
+    p.add_argument('--scan-topic', help='LaserScan topic (default: the only one in the bag)')
+    p.add_argument('--matcher', choices=matcher_names(),
+                   help='scan matcher (overrides the params file)')
+    p.add_argument('--params-file', type=Path, help="the node's ROS 2 parameter YAML file")
+    p.add_argument('--prior', choices=PRIORS, help='motion prior (overrides the params file)')
+    p.add_argument('--odom-topic', help='Odometry topic for --prior odom (default: /odom)')
+    p.add_argument('--imu-topic', help='Imu topic for --prior imu (default: the only one)')
+    p.add_argument('--tum', type=Path, help='write the trajectory to this TUM file')
+    p.add_argument('--output-bag', type=Path,
+                   help='write a ROS 2 bag with /odom (Odometry) and /pose (PoseStamped)')
+    p.add_argument('--storage', choices=('sqlite3', 'mcap'), default='sqlite3',
+                   help='storage of --output-bag (default: sqlite3)')
+    p.add_argument('--reference', type=Path,
+                   help='reference TUM file: print ATE (SE(2)-aligned) and RPE')
+    p.add_argument('--live', action='store_true',
+                   help='publish the scans to a running laser_odom_node instead')
+    p.add_argument('--scan-topic-out', default='scan', help='--live: scan topic of the node')
+    p.add_argument('--odom-topic-in', default='odom', help='--live: odometry topic of the node')
+    p.add_argument('--node-name', default='laser_odom',
+                   help='--live: node name, for its ~/reset service and diagnostics')
+    p.add_argument('--timeout', type=float, default=2.0,
+                   help='--live: seconds to wait for the odometry of one scan')
+    p.add_argument('--quiet', action='store_true', help='no progress lines')
+    return p
+
+
+def load_settings(args: argparse.Namespace) -> tuple[Any, PriorConfig, dict[str, Any]]:
+    """Return the pipeline and prior configurations and the raw parameter values."""
+    values: dict[str, Any] = {}
+    if args.params_file is not None:
+        values = load_node_params(args.params_file)
+    if args.matcher is not None:
+        values['matcher'] = args.matcher
+    if args.prior is not None:
+        values['prior'] = args.prior
+    where = f' in {args.params_file}' if args.params_file is not None else ''
+    try:
+        return (pipeline_config_from_params(values), prior_config_from_params(values),
+                values)
+    except ParameterError as err:
+        raise ReplayError(f'bad parameter{where}: {err}') from None
+
+
+class PriorFeed:
+    """Feeds the bag's wheel odometry / IMU samples into the prior buffers up to each scan.
+
+    Offline all samples are known, so at a scan stamp every sample up to it and the
+    first one after it are buffered - the buffers then interpolate instead of
+    extrapolating, as they would once the next message had arrived live.
+    """
+
+    def __init__(self, prior: str, config: PriorConfig, odometry: Trajectory | None = None,
+                 imu: ImuSamples | None = None) -> None:
+        """Prepare the samples; ``prior`` picks which buffer is used."""
+        self.prior = prior
+        self.odometry = OdometryBuffer(config)
+        self.imu = ImuBuffer(config)
+        self.odometry_samples = odometry if prior == 'odom' else None
+        self.imu_samples = imu if prior == 'imu' else None
+        self._next = 0
+
+    def _stamps(self) -> np.ndarray:
+        """Return the stamps of the active prior's samples."""
+        if self.odometry_samples is not None:
+            return self.odometry_samples.stamps_ns
+        if self.imu_samples is not None:
+            return self.imu_samples.stamps_ns
+        return np.zeros(0, dtype=np.int64)
+
+    def advance(self, stamp_ns: int) -> range:
+        """Buffer the samples up to ``stamp_ns`` and the first one after; return their indices."""
+        stamps = self._stamps()
+        end = min(int(np.searchsorted(stamps, stamp_ns, side='right')) + 1, len(stamps))
+        new = range(self._next, max(end, self._next))
+        for i in new:
+            if self.odometry_samples is not None:
+                self.odometry.add(int(stamps[i]), self.odometry_samples.poses[i])
+            elif self.imu_samples is not None:
+                yaw = float(self.imu_samples.yaw[i])
+                self.imu.add(int(stamps[i]), yaw if np.isfinite(yaw) else None,
+                             float(self.imu_samples.yaw_rate[i]))
+        self._next = new.stop
+        return new
+
+    def prior_for(self, last_ns: int | None, stamp_ns: int) -> tuple[Any, float | None]:
+        """Return ``(prior_step, prior_yaw)`` for the scan at ``stamp_ns``."""
+        self.advance(stamp_ns)
+        return external_prior(self.prior, last_ns, stamp_ns, self.odometry, self.imu)
+
+
+def load_prior_feed(bag: BagReader, prior: str, config: PriorConfig,
+                    args: argparse.Namespace) -> PriorFeed:
+    """Read the prior's topic from the bag (what is readable of a damaged one)."""
+    odometry = imu = None
+    if prior == 'odom':
+        topic = args.odom_topic
+        if topic is None:
+            if '/odom' not in bag.topics:
+                raise ReplayError(f'{bag.path}: no /odom topic for --prior odom; '
+                                  'choose one with --odom-topic')
+            topic = '/odom'
+        odometry = bag.odometry(topic, strict=False)
+    elif prior == 'imu':
+        imu = bag.imu(args.imu_topic, strict=False)
+    return PriorFeed(prior, config, odometry, imu)
+
+
+def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed: PriorFeed,
+                   record: ReplayRecord, quiet: bool) -> None:
+    """Feed every scan through the pipeline, recording each estimate as it comes."""
+    for scan in scans:
+        record.scans_read += 1
+        step, yaw = feed.prior_for(pipeline.last_stamp_ns, scan.stamp_ns)
+        estimate = pipeline.process(scan, step, yaw)
+        if estimate is not None:
+            record.add(estimate.stamp_ns, estimate.pose, estimate.pose_covariance,
+                       estimate.status, estimate.processing_time)
+        if not quiet and record.scans_read % PROGRESS_EVERY == 0:
+            print(f'{record.scans_read} scans replayed', flush=True)
+    record.counters = dict(pipeline.counters)
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Fail early (before the replay) on outputs that cannot be written."""
+    for path in (args.tum, args.output_bag, args.reference):
+        if path is not None and not path.parent.is_dir():
+            raise ReplayError(f'directory {path.parent} does not exist (for {path})')
+    if args.output_bag is not None and args.output_bag.exists():
+        raise ReplayError(f'{args.output_bag} exists already; not overwriting it')
+    if args.reference is not None and not args.reference.is_file():
+        raise ReplayError(f'reference file not found: {args.reference}')
+
+
+def replay(args: argparse.Namespace) -> int:
+    """Run the replay described by parsed arguments; return the exit code."""
+    check_outputs(args)
+    config, prior_config, values = load_settings(args)
+    record = ReplayRecord(live=args.live)
+    damage: BagTruncatedError | None = None
+    interrupted = False
+    with BagReader(args.bag) as bag:
+        topic = bag.select_topic(LASER_SCAN, args.scan_topic)
+        prior = config.motion.prior
+        feed = load_prior_feed(bag, prior, prior_config, args)
+        try:
+            if args.live:
+                from laser_odom.tools.replay_live import run_live
+                run_live(bag.scans(topic), feed, record, args)
+            else:
+                run_in_process(bag.scans(topic), OdometryPipeline(config), feed, record,
+                               args.quiet)
+        except BagTruncatedError as err:
+            damage = err
+        except KeyboardInterrupt:
+            interrupted = True
+    write_outputs(record, args, values)
+    print_summary(record, args, topic, config.matcher if not args.live else None)
+    if damage is not None:
+        raise ReplayError(f'{damage}; {len(record.stamps_ns)} scans processed'
+                          + (', outputs written' if args.tum or args.output_bag else ''))
+    return 130 if interrupted else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``laser_odom_replay``; return the exit code."""
+    args = build_parser().parse_args(argv)
+    try:
+        return replay(args)
+    except (ReplayError, BagError, ParamsFileError, OutputExistsError) as err:
+        print(f'{PROG}: error: {err}', file=sys.stderr)
+        return 2
+    except BagWriteError as err:
+        print(f'{PROG}: error: {err}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,196 @@
+"""``laser_odom_replay --live``: drive a running ``laser_odom_node`` with a bag's scans.
+
+The scans are published one at a time on the node's scan topic; after each, the
+replay waits (``--timeout``) for the node's ``nav_msgs/Odometry`` carrying that scan's
+stamp before sending the next, so the node - which keeps only the newest scan - never
+drops one for backlog. With ``--prior odom|imu`` the bag's wheel odometry / IMU
+samples up to each scan (and the first one after it) are published on the node's
+prior topics first. The time from publishing a scan to receiving its odometry is the
+round-trip latency reported. Failed and degenerate matches are read from the node's
+``/diagnostics`` (the difference between a report before the first scan and one after
+the last), because ``nav_msgs/Odometry`` does not carry a match status.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any, Iterator
+
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg
+from std_srvs.srv import Trigger
+
+from laser_odom.core import se2
+from laser_odom.core.scan import LaserScan
+from laser_odom.ros.conversions import (
+    covariance_3x3, ns_to_stamp, odometry_pose_from_msg, planar_pose_msg, scan_to_msg,
+    stamp_to_ns)
+from laser_odom.ros.priors import PRIOR_TOPICS
+from laser_odom.tools.replay import PriorFeed
+from laser_odom.tools.replay_report import ReplayError, ReplayRecord
+
+DISCOVERY_TIMEOUT = 10.0
+"""Seconds to wait for the node's scan subscription and odometry publisher."""
+
+DIAGNOSTICS_WAIT = 2.5
+"""Seconds to wait for a diagnostics report (the node sends one per second)."""
+
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class _Client:
+    """The replay's ROS side: publishers, the odometry and diagnostics subscriptions."""
+
+    def __init__(self, args: argparse.Namespace, prior: str) -> None:
+        """Create the node in its own context."""
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('laser_odom_replay', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.scan_pub = self.node.create_publisher(LaserScanMsg, args.scan_topic_out, RELIABLE)
+        self.prior_pub = None
+        if prior in PRIOR_TOPICS:
+            self.prior_pub = self.node.create_publisher(
+                Odometry if prior == 'odom' else Imu, PRIOR_TOPICS[prior], RELIABLE)
+        self.odometry: dict[int, tuple[Odometry, float]] = {}
+        self.odom_sub = self.node.create_subscription(
+            Odometry, args.odom_topic_in, self._on_odometry, RELIABLE)
+        self.diagnostics: dict[str, str] | None = None
+        self.diagnostics_count = 0
+        self._node_name = args.node_name.strip('/')
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                      RELIABLE)
+        self.reset_client = self.node.create_client(
+            Trigger, f'/{self._node_name}/reset')
+
+    def close(self) -> None:
+        """Destroy the node and shut the context down."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        """Keep each odometry message by its stamp, with its arrival time."""
+        self.odometry[stamp_to_ns(msg.header.stamp)] = (msg, time.perf_counter())
+
+    def _is_odometry_node(self, status_name: str) -> bool:
+        """Tell whether a status (named ``[ns/]node: ...``) comes from the odometry node.
+
+        A ``--node-name`` without namespace matches that node in any namespace.
+        """
+        source = status_name.split(':', 1)[0].strip('/')
+        return source == self._node_name or (
+            '/' not in self._node_name and source.rsplit('/', 1)[-1] == self._node_name)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """Keep the newest status of the odometry node."""
+        for status in msg.status:
+            if self._is_odometry_node(status.name):
+                self.diagnostics = {kv.key: kv.value for kv in status.values}
+                self.diagnostics_count += 1
+
+    def spin_until(self, done: Any, timeout: float) -> bool:
+        """Spin until ``done()`` is true or ``timeout`` seconds pass; return ``done()``."""
+        deadline = time.monotonic() + timeout
+        while not done():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                return bool(done())
+            self.executor.spin_once(timeout_sec=min(remaining, 0.05))
+        return True
+
+    def wait_for_node(self) -> None:
+        """Wait until the node's scan subscription and odometry publisher are matched."""
+        if not self.spin_until(lambda: self.scan_pub.get_subscription_count() > 0
+                               and self.odom_sub.get_publisher_count() > 0,
+                               DISCOVERY_TIMEOUT):
+            raise ReplayError(
+                f'--live: no laser_odom_node found (nothing subscribes to '
+                f'{self.scan_pub.topic_name} and publishes {self.odom_sub.topic_name} '
+                f'within {DISCOVERY_TIMEOUT:.0f} s); start it with: ros2 run laser_odom '
+                'laser_odom_node')
+        self.spin_until(lambda: False, 0.3)  # let the node's side of the match settle
+
+    def reset_node(self) -> bool:
+        """Call the node's ``~/reset`` so the replay starts from the origin."""
+        if not self.reset_client.wait_for_service(timeout_sec=2.0):
+            return False
+        future = self.reset_client.call_async(Trigger.Request())
+        self.spin_until(future.done, 5.0)
+        return future.done() and future.result() is not None and future.result().success
+
+    def diagnostics_after(self, count: int) -> dict[str, str] | None:
+        """Return the first diagnostics report newer than report number ``count``."""
+        self.spin_until(lambda: self.diagnostics_count > count, DIAGNOSTICS_WAIT)
+        return self.diagnostics if self.diagnostics_count > count else None
+
+    def publish_priors(self, feed: PriorFeed, indices: range) -> None:
+        """Publish the given prior samples on the node's prior topic."""
+        if self.prior_pub is None:
+            return
+        for i in indices:
+            if feed.odometry_samples is not None:
+                msg = Odometry()
+                msg.header.stamp = ns_to_stamp(int(feed.odometry_samples.stamps_ns[i]))
+                msg.pose.pose = planar_pose_msg(feed.odometry_samples.poses[i])
+            else:
+                samples = feed.imu_samples
+                msg = Imu()
+                msg.header.stamp = ns_to_stamp(int(samples.stamps_ns[i]))
+                if np.isfinite(samples.yaw[i]):
+                    x, y, z, w = se2.yaw_to_quaternion(float(samples.yaw[i]))
+                    msg.orientation.x, msg.orientation.y = x, y
+                    msg.orientation.z, msg.orientation.w = z, w
+                else:
+                    msg.orientation_covariance[0] = -1.0
+                msg.angular_velocity.z = float(samples.yaw_rate[i])
+            self.prior_pub.publish(msg)
+
+
+def _count(report: dict[str, str] | None, key: str) -> int:
+    """Return an integer diagnostics value (0 when absent)."""
+    try:
+        return int(float((report or {}).get(key, '0')))
+    except ValueError:
+        return 0
+
+
+def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
+             args: argparse.Namespace) -> None:
+    """Publish every scan to the node and record the odometry it answers with."""
+    client = _Client(args, feed.prior)
+    try:
+        client.wait_for_node()
+        reset = client.reset_node()
+        before = client.diagnostics_after(client.diagnostics_count)
+        if not args.quiet and not reset:
+            print(f'--live: could not call /{args.node_name}/reset; the node keeps its pose')
+        for scan in scans:
+            record.scans_read += 1
+            client.publish_priors(feed, feed.advance(scan.stamp_ns))
+            sent = time.perf_counter()
+            client.scan_pub.publish(scan_to_msg(scan))
+            if client.spin_until(lambda: scan.stamp_ns in client.odometry, args.timeout):
+                msg, arrived = client.odometry.pop(scan.stamp_ns)
+                stamp, pose = odometry_pose_from_msg(msg)
+                record.add(stamp, pose, covariance_3x3(msg.pose.covariance), 'received',
+                           arrived - sent)
+            else:
+                record.counters['no_answer'] = record.counters.get('no_answer', 0) + 1
+            if not args.quiet and record.scans_read % 500 == 0:
+                print(f'{record.scans_read} scans replayed (live)', flush=True)
+        after = client.diagnostics_after(client.diagnostics_count)
+        if before is not None and after is not None:
+            for key, name in (('failed matches', 'rejected'),
+                              ('degenerate matches', 'degenerate')):
+                record.counters[name] = _count(after, key) - _count(before, key)
+    finally:
+        client.close()
