@@ -41,5 +41,8 @@ demo: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/laser_odom_bench $(BENCH_ARGS)
 
+soak: $(STAMP)
+	$(BIN)/python -m laser_odom.tools.soak --scans 100000
+
 clean:
 	rm -rf $(VENV) $(OUT) build install log *.egg-info

@@ -149,8 +149,14 @@ def write_bag(path: str | Path, scans: Sequence[LaserScan] = (),
               storage: str = 'sqlite3', odom_frame: str = 'odom',
               base_frame: str = 'base_link',
               covariances: Mapping[str, np.ndarray] | None = None,
-              frame_ids: Mapping[str, str] | None = None) -> None:
+              frame_ids: Mapping[str, str] | None = None,
+              scan_record_times: Sequence[int] | None = None) -> None:
     """Write a ROS 2 bag at ``path`` (a directory, as ``ros2 bag record`` makes).
+
+    Scans are recorded at their header stamps, in stamp order, unless
+    ``scan_record_times`` gives each scan's recording time [ns]: then they are written
+    in the given order at those times, whatever their header stamps (a bag recorded
+    while a simulator restarted, or a looped playback).
 
     ``odometry`` and ``poses`` map topic names to trajectories; their header frame is
     ``odom_frame`` unless ``frame_ids`` names another for the topic, and odometry's
@@ -183,7 +189,12 @@ def write_bag(path: str | Path, scans: Sequence[LaserScan] = (),
         raise BagWriteError(f'cannot write {path}: directory {parent} does not exist')
 
     streams: list[tuple[str, str, Iterator[tuple[int, Any]]]] = []
-    if len(scans):
+    if scan_record_times is not None:
+        if len(scan_record_times) != len(scans) or np.any(np.diff(scan_record_times) < 0):
+            raise ValueError('scan_record_times needs one increasing time per scan')
+        streams.append((scan_topic, LASER_SCAN, (
+            (int(t), scan_message(s)) for t, s in zip(scan_record_times, scans))))
+    elif len(scans):
         order = sorted(scans, key=lambda s: s.stamp_ns)
         streams.append((scan_topic, LASER_SCAN,
                         ((s.stamp_ns, scan_message(s)) for s in order)))

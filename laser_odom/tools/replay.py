@@ -24,6 +24,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from laser_odom.core.config import pipeline_config_from_params, PRIORS
+from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.params import ParameterError
 from laser_odom.core.pipeline import OdometryPipeline
@@ -172,6 +173,11 @@ def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed:
     record.counters = dict(pipeline.counters)
 
 
+def warn_on_stderr(message: str) -> None:
+    """Print a pipeline warning (already throttled) on stderr."""
+    print(f'{PROG}: warning: {message}', file=sys.stderr)
+
+
 def check_outputs(args: argparse.Namespace) -> None:
     """Fail early (before the replay) on outputs that cannot be written."""
     for path in (args.tum, args.output_bag, args.reference):
@@ -199,8 +205,9 @@ def replay(args: argparse.Namespace) -> int:
                 from laser_odom.tools.replay_live import run_live
                 run_live(bag.scans(topic), feed, record, args)
             else:
-                run_in_process(bag.scans(topic), OdometryPipeline(config), feed, record,
-                               args.quiet)
+                events = EventLog(warn_on_stderr)
+                run_in_process(bag.scans(topic), OdometryPipeline(config, events=events),
+                               feed, record, args.quiet)
         except BagTruncatedError as err:
             damage = err
         except KeyboardInterrupt:
