@@ -67,9 +67,10 @@ class AcceptanceConfig:
         'predict', 'On a rejected match: predict (advance by the prior) or hold (no motion).',
         choices=('predict', 'hold'))
     degeneracy_min_information: float = param(
-        100.0, 'A direction whose match information is below this [1/m^2; rotation '
-        "measured as the arc at the scan's RMS range] is degenerate (100 = a standard "
-        'deviation above 10 cm) and takes the prediction.', 0.0, 1e12)
+        400.0, 'A direction whose match information is below this [1/m^2; rotation '
+        "measured as the arc at the scan's RMS range] is degenerate (400 = a standard "
+        'deviation above 5 cm, a whole step at walking speed) and takes the prediction.',
+        0.0, 1e12)
 
 
 @dataclass

@@ -61,7 +61,7 @@ class IcpConfig(MatcherConfig):
     convergence_rotation: float = param(
         1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
     covariance_scale: float = param(
-        5.0, 'Factor on the match covariance from the residuals (inflation calibrated so '
+        8.0, 'Factor on the match covariance from the residuals (inflation calibrated so '
         'that the normalised estimation error squared on simulated runs is about 3).',
         0.01, 1000.0)
     max_correspondence_distance: float = param(
@@ -214,7 +214,7 @@ def surface_information(reference: ScanPoints, moved: np.ndarray, estimate: se2.
     on the reference surface normal gives the information the geometry really holds
     (as in Censi, "An accurate closed-form estimate of ICP's covariance", ICRA 2007).
     """
-    surface = estimate_normals(reference)
+    surface = estimate_normals(reference, neighbours=20, radius=0.5)
     pairs = nearest_neighbours(reference.tree, moved, cfg.max_correspondence_distance)
     pairs = pairs.subset(surface.valid[pairs.reference])
     if len(pairs) < 3:

@@ -1,0 +1,44 @@
+"""Covariance is honest: the normalised estimation error squared of each step is about 3."""
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.matchers import matcher_names
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.simulation import LaserModel, simulate
+
+DOF = 3
+
+
+@pytest.fixture(scope='module')
+def long_run():
+    """1000 scans (100 s) in the office world with 1 cm Gaussian range noise."""
+    return simulate('office', duration=100.0, laser=LaserModel(noise_sigma=0.01), seed=5)
+
+
+def step_nees(run, matcher: str) -> np.ndarray:
+    """Return e^T S^-1 e of every matched step (e: error of the per-step motion)."""
+    pipeline = OdometryPipeline(PipelineConfig(matcher=matcher),
+                                events=EventLog(lambda message: None))
+    truth = run.reference.poses
+    values = []
+    for index, scan in enumerate(run.scans):
+        estimate = pipeline.process(scan)
+        if estimate is None or estimate.status != 'matched':
+            continue
+        dt = (scan.stamp_ns - run.scans[index - 1].stamp_ns) * 1e-9
+        error = estimate.twist * dt - se2.relative(truth[index - 1], truth[index])
+        error[2] = se2.wrap_angle(error[2])
+        covariance = estimate.twist_covariance * dt * dt
+        values.append(float(error @ np.linalg.solve(covariance, error)))
+    return np.array(values)
+
+
+@pytest.mark.parametrize('matcher', matcher_names())
+def test_mean_nees_of_the_step_is_consistent(long_run, matcher):
+    nees = step_nees(long_run, matcher)
+    assert len(nees) >= 900  # nearly every step was matched and scored
+    assert 0.5 * DOF <= nees.mean() <= 2.0 * DOF, nees.mean()

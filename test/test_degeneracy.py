@@ -1,0 +1,38 @@
+"""Degenerate scenes: a featureless corridor is flagged and its covariance says so."""
+
+import numpy as np
+import pytest
+
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.matchers import matcher_names
+from laser_odom.core.metrics import evaluate
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.runner import run_pipeline
+from laser_odom.core.simulation import simulate
+
+
+@pytest.fixture(scope='module')
+def corridor_run():
+    """Twelve seconds straight down a corridor with smooth walls (along world x)."""
+    return simulate('featureless_corridor', duration=12.0, seed=1)
+
+
+@pytest.mark.parametrize('matcher', matcher_names())
+def test_featureless_corridor_is_flagged_with_honest_covariance(corridor_run, matcher):
+    pipeline = OdometryPipeline(PipelineConfig(matcher=matcher),
+                                events=EventLog(lambda message: None))
+    result = run_pipeline(pipeline, corridor_run.scans)
+    matches = len(corridor_run.scans) - 1
+    assert pipeline.counters['degenerate'] >= 0.8 * matches
+    # Published covariance: at least 10x larger along the corridor (x) than across (y).
+    covariance = result.pose_covariances[-1]
+    assert covariance[0, 0] >= 10.0 * covariance[1, 1]
+    # Across the corridor and in heading the estimate stays as good as in a normal scene.
+    truth = corridor_run.reference
+    across = np.abs(result.trajectory.poses[:, 1] - truth.poses[:, 1])
+    heading = np.abs(result.trajectory.poses[:, 2] - truth.poses[:, 2])
+    assert across.max() < 0.05
+    assert np.degrees(heading.max()) < 1.0
+    errors = evaluate(result.trajectory, truth)
+    assert errors.failed_steps == 0
