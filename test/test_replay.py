@@ -143,7 +143,7 @@ def test_prior_feed_interpolates_odometry_and_imu_between_scans():
     from laser_odom.core import se2
     from laser_odom.core.priors import PriorConfig
     from laser_odom.core.trajectory import Trajectory
-    from laser_odom.io.bag_reader import ImuSamples
+    from laser_odom.core.trajectory import ImuSamples
     # Wheel odometry at 50 Hz of a robot turning on a circle; scans at 10 Hz in between.
     t = np.arange(0, 101) * 20_000_000
     phi = 0.5 * t * 1e-9

@@ -14,9 +14,11 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.config import PipelineConfig
+from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
 from laser_odom.core.metrics import evaluate
 from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.priors import PriorConfig, PriorFeed
 from laser_odom.core.runner import run_pipeline
 from laser_odom.core.simulation import LaserModel, simulate
 from laser_odom.core.trajectory import Dataset, Trajectory
@@ -105,9 +107,11 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
     if config is None:
         config = PipelineConfig(matcher=matcher, matcher_config=default_config(matcher))
     config.motion.prior = BENCH_PRIORS[prior]
-    pipeline = OdometryPipeline(config)
-    result = run_pipeline(pipeline, dataset.scans, odometry=dataset.odometry,
-                          progress=progress)
+    pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
+    feed = None
+    if prior == 'odom':
+        feed = PriorFeed('odom', PriorConfig(), odometry=dataset.odometry)
+    result = run_pipeline(pipeline, dataset.scans, priors=feed, progress=progress)
     return _row(dataset, matcher, prior, result.trajectory, result.processing_times,
                 result.counters['rejected'])
 

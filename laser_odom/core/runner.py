@@ -13,11 +13,12 @@ from typing import Callable, Iterable
 import numpy as np
 
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
+from laser_odom.core.priors import PriorFeed
 from laser_odom.core.scan import LaserScan
 from laser_odom.core.trajectory import Trajectory
 
 ProgressCallback = Callable[[int], None]
-EstimateCallback = Callable[[LaserScan, OdometryEstimate], None]
+EstimateCallback = Callable[[OdometryEstimate], None]
 
 
 @dataclass
@@ -36,34 +37,31 @@ class RunResult:
 
 
 def run_pipeline(pipeline: OdometryPipeline, scans: Iterable[LaserScan],
-                 odometry: Trajectory | None = None,
+                 priors: PriorFeed | None = None,
                  progress: ProgressCallback | None = None,
                  on_estimate: EstimateCallback | None = None) -> RunResult:
     """Feed ``scans`` through ``pipeline`` in order and collect the estimates.
 
-    ``odometry``, when given and the pipeline's prior is ``odom``, supplies each
-    match's ``prior_step``: the wheel motion between the last processed scan and this
-    one, interpolated at the scan stamps. ``progress`` is called with the number of scans consumed.
+    ``priors`` supplies each match's wheel-odometry step or IMU yaw change (used when
+    the pipeline's ``prior`` asks for it), exactly as the node's buffers do live.
+    ``progress`` is called with the number of scans consumed, ``on_estimate`` with
+    every estimate as it is made (so a caller keeps what was done if reading fails).
     """
-    use_odometry = (odometry is not None and len(odometry) > 0
-                    and pipeline.config.motion.prior == 'odom')
     stamps: list[int] = []
     poses: list[np.ndarray] = []
     covariances: list[np.ndarray] = []
     times: list[float] = []
     for count, scan in enumerate(scans, start=1):
-        last = pipeline.last_stamp_ns
-        prior_step = None
-        if use_odometry and last is not None and scan.stamp_ns > last:
-            prior_step = odometry.motion_between(last, scan.stamp_ns)
-        estimate = pipeline.process(scan, prior_step=prior_step)
+        step, yaw = (None, None) if priors is None else priors.prior_for(
+            pipeline.last_stamp_ns, scan.stamp_ns)
+        estimate = pipeline.process(scan, step, yaw)
         if estimate is not None:
             stamps.append(estimate.stamp_ns)
             poses.append(estimate.pose)
             covariances.append(estimate.pose_covariance)
             times.append(estimate.processing_time)
             if on_estimate is not None:
-                on_estimate(scan, estimate)
+                on_estimate(estimate)
         if progress is not None:
             progress(count)
     return RunResult(

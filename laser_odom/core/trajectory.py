@@ -64,6 +64,19 @@ class Trajectory:
 
 
 @dataclass
+class ImuSamples:
+    """IMU heading samples: stamps [ns], yaw [rad] (NaN when not provided), yaw rate [rad/s]."""
+
+    stamps_ns: np.ndarray
+    yaw: np.ndarray
+    yaw_rate: np.ndarray
+
+    def __len__(self) -> int:
+        """Return the number of samples."""
+        return int(self.stamps_ns.shape[0])
+
+
+@dataclass
 class Dataset:
     """Scans with optional raw wheel odometry and an optional reference trajectory.
 

@@ -12,7 +12,6 @@ which message reading stopped. Messages come out as the core's types
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Collection, Iterator
 
@@ -20,7 +19,7 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.scan import LaserScan
-from laser_odom.core.trajectory import Trajectory
+from laser_odom.core.trajectory import ImuSamples, Trajectory
 from laser_odom.io.bag_sources import (
     Message, Ros1RecordSource, Ros2SalvageSource, RosbagsSource, SourceReadError)
 from laser_odom.io.ros1_records import MAGIC as ROS1_MAGIC
@@ -86,19 +85,6 @@ def pose_from_odometry(msg: Any) -> se2.Pose:
     """Return the planar pose ``[x, y, yaw]`` of a ``nav_msgs/Odometry``."""
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
     return se2.pose(p.x, p.y, se2.quaternion_to_yaw(q.x, q.y, q.z, q.w))
-
-
-@dataclass
-class ImuSamples:
-    """IMU heading samples: stamps [ns], yaw [rad] (NaN when not provided), yaw rate [rad/s]."""
-
-    stamps_ns: np.ndarray
-    yaw: np.ndarray
-    yaw_rate: np.ndarray
-
-    def __len__(self) -> int:
-        """Return the number of samples."""
-        return int(self.stamps_ns.shape[0])
 
 
 def _sniff(path: Path) -> bytes:

@@ -21,19 +21,16 @@ from pathlib import Path
 import sys
 from typing import Any, Iterator
 
-import numpy as np
-
 from laser_odom.core.config import pipeline_config_from_params, PRIORS
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.params import ParameterError
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.priors import (
-    external_prior, ImuBuffer, OdometryBuffer, prior_config_from_params, PriorConfig)
+from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
+from laser_odom.core.priors import prior_config_from_params, PriorConfig, PriorFeed
+from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import LaserScan
-from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_reader import (
-    BagError, BagReader, BagTruncatedError, ImuSamples, LASER_SCAN)
+    BagError, BagReader, BagTruncatedError, LASER_SCAN)
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import load_node_params, ParamsFileError
 from laser_odom.tools.replay_report import (
@@ -94,53 +91,6 @@ def load_settings(args: argparse.Namespace) -> tuple[Any, PriorConfig, dict[str,
         raise ReplayError(f'bad parameter{where}: {err}') from None
 
 
-class PriorFeed:
-    """Feeds the bag's wheel odometry / IMU samples into the prior buffers up to each scan.
-
-    Offline all samples are known, so at a scan stamp every sample up to it and the
-    first one after it are buffered - the buffers then interpolate instead of
-    extrapolating, as they would once the next message had arrived live.
-    """
-
-    def __init__(self, prior: str, config: PriorConfig, odometry: Trajectory | None = None,
-                 imu: ImuSamples | None = None) -> None:
-        """Prepare the samples; ``prior`` picks which buffer is used."""
-        self.prior = prior
-        self.odometry = OdometryBuffer(config)
-        self.imu = ImuBuffer(config)
-        self.odometry_samples = odometry if prior == 'odom' else None
-        self.imu_samples = imu if prior == 'imu' else None
-        self._next = 0
-
-    def _stamps(self) -> np.ndarray:
-        """Return the stamps of the active prior's samples."""
-        if self.odometry_samples is not None:
-            return self.odometry_samples.stamps_ns
-        if self.imu_samples is not None:
-            return self.imu_samples.stamps_ns
-        return np.zeros(0, dtype=np.int64)
-
-    def advance(self, stamp_ns: int) -> range:
-        """Buffer the samples up to ``stamp_ns`` and the first one after; return their indices."""
-        stamps = self._stamps()
-        end = min(int(np.searchsorted(stamps, stamp_ns, side='right')) + 1, len(stamps))
-        new = range(self._next, max(end, self._next))
-        for i in new:
-            if self.odometry_samples is not None:
-                self.odometry.add(int(stamps[i]), self.odometry_samples.poses[i])
-            elif self.imu_samples is not None:
-                yaw = float(self.imu_samples.yaw[i])
-                self.imu.add(int(stamps[i]), yaw if np.isfinite(yaw) else None,
-                             float(self.imu_samples.yaw_rate[i]))
-        self._next = new.stop
-        return new
-
-    def prior_for(self, last_ns: int | None, stamp_ns: int) -> tuple[Any, float | None]:
-        """Return ``(prior_step, prior_yaw)`` for the scan at ``stamp_ns``."""
-        self.advance(stamp_ns)
-        return external_prior(self.prior, last_ns, stamp_ns, self.odometry, self.imu)
-
-
 def load_prior_feed(bag: BagReader, prior: str, config: PriorConfig,
                     args: argparse.Namespace) -> PriorFeed:
     """Read the prior's topic from the bag (what is readable of a damaged one)."""
@@ -161,16 +111,19 @@ def load_prior_feed(bag: BagReader, prior: str, config: PriorConfig,
 def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed: PriorFeed,
                    record: ReplayRecord, quiet: bool) -> None:
     """Feed every scan through the pipeline, recording each estimate as it comes."""
-    for scan in scans:
-        record.scans_read += 1
-        step, yaw = feed.prior_for(pipeline.last_stamp_ns, scan.stamp_ns)
-        estimate = pipeline.process(scan, step, yaw)
-        if estimate is not None:
-            record.add(estimate.stamp_ns, estimate.pose, estimate.pose_covariance,
-                       estimate.status, estimate.processing_time)
-        if not quiet and record.scans_read % PROGRESS_EVERY == 0:
-            print(f'{record.scans_read} scans replayed', flush=True)
-    record.counters = dict(pipeline.counters)
+    def progress(count: int) -> None:
+        record.scans_read = count
+        if not quiet and count % PROGRESS_EVERY == 0:
+            print(f'{count} scans replayed', flush=True)
+
+    def on_estimate(estimate: OdometryEstimate) -> None:
+        record.add(estimate.stamp_ns, estimate.pose, estimate.pose_covariance,
+                   estimate.status, estimate.processing_time)
+
+    try:
+        run_pipeline(pipeline, scans, priors=feed, progress=progress, on_estimate=on_estimate)
+    finally:
+        record.counters = dict(pipeline.counters)
 
 
 def warn_on_stderr(message: str) -> None:
