@@ -1,0 +1,153 @@
+"""Node health on ``/diagnostics``: what came in, what was done with it, and how fast.
+
+Once a second the node publishes one ``diagnostic_msgs/DiagnosticStatus`` with the
+pipeline's counters (scans in and processed, skipped and rejected scans by reason,
+failed and degenerate matches), processing-time statistics and the input rate. The
+level is judged on the last period only (failure rate, backlog, silence) and on the
+recent processing times, so the status recovers as soon as the problem does.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Iterable
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+import numpy as np
+
+from laser_odom.ros.parameters import NodeConfig
+
+OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
+"""Counters that are outcomes, not skip reasons."""
+
+EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back')
+"""Counters of events that do not skip the scan."""
+
+REJECTED_PREFIX = 'rejected_'
+"""Prefix of the per-reason rejection counters the node keeps."""
+
+
+class ScanGapCounter:
+    """Counts scans that never reached the node, from gaps between consecutive stamps.
+
+    A scan dropped on the wire, or overwritten in the depth-1 subscription queue while
+    the node was busy, leaves a gap of several scan periods between the stamps the node
+    does receive. The period is the median of the recent gaps; gaps longer than
+    ``max_gap_ns`` (a pause, a restart) and stamps going back are not counted.
+    """
+
+    def __init__(self, window: int = 50, min_samples: int = 5) -> None:
+        """Create the counter; nothing is counted before ``min_samples`` gaps are seen."""
+        self._gaps: deque[int] = deque(maxlen=window)
+        self._min_samples = min_samples
+        self._last: int | None = None
+
+    def missed(self, stamp_ns: int, max_gap_ns: int) -> int:
+        """Return how many scans are missing just before the scan stamped ``stamp_ns``."""
+        last, self._last = self._last, stamp_ns
+        if last is None or stamp_ns <= last:
+            if last is not None and stamp_ns < last:
+                self._gaps.clear()
+            return 0
+        gap = stamp_ns - last
+        if gap > max_gap_ns:
+            return 0
+        period = float(np.median(self._gaps)) if len(self._gaps) >= self._min_samples else 0.0
+        self._gaps.append(gap)
+        if period <= 0.0 or gap <= 1.5 * period:
+            return 0
+        return int(round(gap / period)) - 1
+
+
+@dataclass
+class Snapshot:
+    """What the diagnostics are computed from, copied under the node's lock."""
+
+    time: float
+    received: int
+    counters: Counter
+    processing_times: np.ndarray
+    matcher: str
+    prior: str
+    scan_topic: str
+
+
+def skip_reasons(counters: Counter) -> dict[str, int]:
+    """Return the counters that name why a scan was skipped."""
+    return {k: v for k, v in sorted(counters.items()) if v
+            and k not in OUTCOMES and k not in EVENTS and not k.startswith(REJECTED_PREFIX)}
+
+
+def _values(pairs: Iterable[tuple[str, object]]) -> list[KeyValue]:
+    """Return key/value pairs as diagnostic ``KeyValue`` messages."""
+    return [KeyValue(key=key, value=str(value)) for key, value in pairs]
+
+
+class DiagnosticsReporter:
+    """Builds the node's status from successive snapshots."""
+
+    def __init__(self, name: str, hardware_id: str, start_time: float) -> None:
+        """Create the reporter; the first report covers the time since ``start_time``."""
+        self.name = name
+        self.hardware_id = hardware_id
+        self._previous = Snapshot(start_time, 0, Counter(), np.zeros(0), '', '', '')
+
+    def status(self, now: Snapshot, thresholds: NodeConfig) -> DiagnosticStatus:
+        """Return the status for the period since the previous call."""
+        before, self._previous = self._previous, now
+        period = max(now.time - before.time, 1e-9)
+        delta = Counter(now.counters)
+        delta.subtract(before.counters)
+        received = now.received - before.received
+        matches = delta['matched'] + delta['degenerate'] + delta['rejected']
+        failure_rate = delta['rejected'] / matches if matches else 0.0
+        times = now.processing_times
+        median = float(np.median(times)) if len(times) else 0.0
+        p95 = float(np.percentile(times, 95)) if len(times) else 0.0
+
+        level, problems = DiagnosticStatus.OK, []
+
+        def raise_level(new_level: bytes, text: str) -> None:
+            nonlocal level
+            level = max(level, new_level)
+            problems.append(text)
+
+        if failure_rate >= thresholds.diagnostics_error_failure_rate and matches:
+            raise_level(DiagnosticStatus.ERROR, f'{failure_rate:.0%} of matches failed')
+        elif failure_rate >= thresholds.diagnostics_warn_failure_rate and matches:
+            raise_level(DiagnosticStatus.WARN, f'{failure_rate:.0%} of matches failed')
+        if median >= thresholds.diagnostics_error_processing_time and len(times):
+            raise_level(DiagnosticStatus.ERROR, f'median processing time {median * 1e3:.0f} ms')
+        elif median >= thresholds.diagnostics_warn_processing_time and len(times):
+            raise_level(DiagnosticStatus.WARN, f'median processing time {median * 1e3:.0f} ms')
+        if delta['skipped_backlog'] > 0:
+            raise_level(DiagnosticStatus.WARN, f'processing slower than the scans arrive '
+                                               f'({delta["skipped_backlog"]} skipped)')
+        if delta['missed_scans'] > 0:
+            raise_level(DiagnosticStatus.WARN, f'{delta["missed_scans"]} scans missed '
+                                               '(gaps in the scan stamps)')
+        if received == 0:
+            raise_level(DiagnosticStatus.WARN, f'no scans received on {now.scan_topic}')
+
+        skipped = skip_reasons(now.counters)
+        rejected = {k[len(REJECTED_PREFIX):]: v for k, v in sorted(now.counters.items())
+                    if k.startswith(REJECTED_PREFIX)}
+        pairs = [
+            ('matcher', now.matcher), ('prior', now.prior),
+            ('scans received', now.received), ('scans in', now.counters['scans_in']),
+            ('scans processed', now.counters['processed']),
+            ('scans skipped', sum(skipped.values())),
+            ('failed matches', now.counters['rejected']),
+            ('degenerate matches', now.counters['degenerate']),
+            ('failure rate (last period)', f'{failure_rate:.3f}'),
+            ('processing time median [ms]', f'{median * 1e3:.2f}'),
+            ('processing time p95 [ms]', f'{p95 * 1e3:.2f}'),
+            ('input rate [Hz]', f'{received / period:.2f}'),
+        ]
+        pairs += [(f'skipped: {k}', v) for k, v in skipped.items()]
+        pairs += [(f'rejected: {k}', v) for k, v in rejected.items()]
+        pairs += [(k, now.counters[k]) for k in EVENTS if now.counters[k]]
+        return DiagnosticStatus(
+            level=level, name=self.name, hardware_id=self.hardware_id,
+            message='; '.join(problems) if problems else 'OK', values=_values(pairs))

@@ -1,0 +1,321 @@
+"""The ``laser_odom`` node: laser scans in, odometry of the robot base out.
+
+Subscribes ``scan`` (``sensor_msgs/LaserScan``, sensor-data QoS, depth 1) and publishes
+``odom`` (``nav_msgs/Odometry``) and ``pose`` (``geometry_msgs/PoseStamped``) stamped
+with the scan's own stamp, plus ``odom_frame -> base_frame`` on TF when tf2_ros is
+available. The odometry is :class:`laser_odom.core.pipeline.OdometryPipeline`, the
+object the replay harness drives offline.
+
+The node never queues scans: the subscription callback only fills a one-scan slot
+and a worker thread drains it, so when matching is slower than the scanner the newest
+scan is matched against the last processed one and the overwritten scans are counted
+as ``skipped_backlog``. ``~/reset`` (``std_srvs/Trigger``) and ``~/set_pose``
+(``geometry_msgs/PoseWithCovarianceStamped``) restart the integration; health goes to
+``/diagnostics`` once a second; parameters are live (see :mod:`.live`).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data, QoSProfile
+from sensor_msgs.msg import LaserScan as LaserScanMsg
+from std_srvs.srv import Trigger
+
+from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
+from laser_odom.ros.conversions import (
+    initial_pose_from_msg, odometry_to_msg, pose_stamped_to_msg, scan_from_msg, stamp_to_ns,
+    transform_to_msg)
+from laser_odom.ros.diagnostics import (
+    DiagnosticsReporter, REJECTED_PREFIX, ScanGapCounter, Snapshot)
+from laser_odom.ros.extrinsic import TfInterface
+from laser_odom.ros.live import LiveParameters, StartupError
+from laser_odom.ros.priors import PriorInputs
+
+SCAN_QOS = QoSProfile(
+    history=qos_profile_sensor_data.history, depth=1,
+    reliability=qos_profile_sensor_data.reliability,
+    durability=qos_profile_sensor_data.durability)
+"""Sensor-data QoS keeping only the newest scan: a slow node must not build a queue."""
+
+DIAGNOSTICS_PERIOD = 1.0
+"""Seconds between two diagnostics reports."""
+
+
+class LaserOdomNode(Node):
+    """Scan-to-scan laser odometry as a ROS 2 node (node name ``laser_odom``)."""
+
+    def __init__(self, **kwargs) -> None:
+        """Declare parameters, build the pipeline and start the worker.
+
+        Raises :class:`StartupError` (after destroying the node) when the parameters
+        are invalid, e.g. an unknown ``matcher``.
+        """
+        super().__init__('laser_odom', **kwargs)
+        try:
+            self._setup()
+        except BaseException:
+            self.shutdown()
+            self.destroy_node()
+            raise
+
+    def _setup(self) -> None:
+        """Create everything the node runs with."""
+        self._lock = threading.RLock()
+        self.params = LiveParameters(self, self._on_settings)
+        settings = self.params.settings
+        self._tf = TfInterface(self, settings.node.base_frame, settings.node.use_tf_extrinsic)
+        self.pipeline = OdometryPipeline(self.params.pipeline_config())
+        self._priors = PriorInputs(self, settings.priors)
+        self._priors.configure(settings.pipeline.motion.prior, settings.priors)
+        self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
+        self._pose_pub = self.create_publisher(PoseStamped, 'pose', 10)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._slot_lock = threading.Lock()
+        self._slot: LaserScanMsg | None = None
+        self._overwritten = 0
+        self._missed = 0
+        self._gaps = ScanGapCounter()
+        self._received = 0
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._scan_sub = self.create_subscription(
+            LaserScanMsg, 'scan', self._on_scan, SCAN_QOS)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_subscription(
+            PoseWithCovarianceStamped, '~/set_pose', self._on_set_pose, 10)
+        self._reporter = DiagnosticsReporter(
+            f'{self.get_fully_qualified_name().lstrip("/")}: odometry',
+            settings.node.base_frame, time.monotonic())
+        self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
+        self.params.start()
+        self._worker = threading.Thread(target=self._work, name='laser_odom_worker',
+                                        daemon=True)
+        self._worker.start()
+        self._log_startup()
+
+    def _log_startup(self) -> None:
+        """Say once what the node runs with and where it reads and writes."""
+        s = self.params.settings
+        m = s.pipeline.mounting
+        mounting = ('from TF' if self._tf.use_extrinsic else
+                    f'x={m.laser_x} y={m.laser_y} yaw={m.laser_yaw} '
+                    f'upside_down={m.laser_upside_down}')
+        prior = s.pipeline.motion.prior
+        prior_topic = self._priors.topic_name(prior)
+        self.get_logger().info(
+            f'laser odometry: matcher {s.pipeline.matcher}, prior {prior}'
+            + (f' from {prior_topic}' if prior_topic else '')
+            + f'; {self._scan_sub.topic_name} -> {self._odom_pub.topic_name}, '
+            f'{self._pose_pub.topic_name}; frames {s.node.odom_frame} -> '
+            f'{s.node.base_frame}; laser mounting {mounting}; TF broadcast '
+            f'{"on" if s.node.publish_tf and self._tf.available else "off"}')
+        if not self._tf.available:
+            self.get_logger().info(
+                'tf2_ros is not available: no TF broadcast, laser mounting from the '
+                'laser_* parameters' + (' (use_tf_extrinsic ignored)'
+                                        if s.node.use_tf_extrinsic else ''))
+
+    def _on_settings(self, changed: dict) -> None:
+        """Apply validated parameter changes (called by :class:`LiveParameters`)."""
+        settings = self.params.settings
+        with self._lock:
+            self.pipeline.configure(self.params.pipeline_config())
+        self._priors.configure(settings.pipeline.motion.prior, settings.priors)
+        self.get_logger().info('parameters set: ' + ', '.join(
+            f'{k}={v!r}' for k, v in sorted(changed.items())))
+
+    def _on_scan(self, msg: LaserScanMsg) -> None:
+        """Keep only the newest scan; the worker takes it when it is free."""
+        max_gap_ns = int(self.pipeline.config.motion.max_scan_gap * 1e9)
+        with self._slot_lock:
+            self._received += 1
+            self._missed += self._gaps.missed(stamp_to_ns(msg.header.stamp), max_gap_ns)
+            if self._slot is not None:
+                self._overwritten += 1
+            self._slot = msg
+        self._wake.set()
+
+    def _work(self) -> None:
+        """Process scans from the slot until the node shuts down."""
+        while not self._stop.is_set():
+            if not self._wake.wait(0.1):
+                continue
+            self._wake.clear()
+            with self._slot_lock:
+                msg, skipped = self._slot, {'skipped_backlog': self._overwritten,
+                                            'missed_scans': self._missed}
+                self._slot, self._overwritten, self._missed = None, 0, 0
+            if msg is None:
+                continue
+            try:
+                self._process(msg, skipped)
+            except Exception as error:  # keep running: one bad scan must not stop odometry
+                if self._stop.is_set() or not self.context.ok():
+                    return
+                self.get_logger().error(f'failed to process a scan: {error!r}')
+
+    def _process(self, msg: LaserScanMsg, skipped: dict[str, int]) -> None:
+        """Run one scan through the pipeline and publish the result.
+
+        ``skipped`` counts the scans that never reached the pipeline since the last
+        call: overwritten in the slot, or missing from the stamps (see :mod:`.diagnostics`).
+        """
+        scan = scan_from_msg(msg)
+        with self._lock:
+            counters = self.pipeline.counters
+            counters.update({k: v for k, v in skipped.items() if v})
+            if self._tf.use_extrinsic and not self._update_extrinsic(scan.frame_id):
+                counters['extrinsic_missing'] += 1
+                return
+            prior = self.pipeline.config.motion.prior
+            last = self.pipeline.last_stamp_ns
+            step, yaw = self._priors.prior(prior, last, scan.stamp_ns)
+            if (prior in ('odom', 'imu') and step is None and yaw is None
+                    and last is not None and self.pipeline.keyframe is not None):
+                self._priors.warn_missing(prior, scan.stamp_ns)
+            before = counters.copy()
+            estimate = self.pipeline.process(scan, step, yaw)
+            if estimate is None:
+                reasons = sorted(k for k in counters if counters[k] > before[k]
+                                 and k != 'scans_in')
+                self.get_logger().warning(
+                    f'scan {scan.stamp_ns} skipped ({", ".join(reasons) or "unknown"}); '
+                    'see /diagnostics for counts', throttle_duration_sec=5.0)
+            if estimate is not None and estimate.status == 'rejected' and estimate.match:
+                reason = estimate.match.extra.get('rejection', 'unknown')
+                counters[REJECTED_PREFIX + reason] += 1
+            node = self.params.settings.node
+        if estimate is not None:
+            self._publish(estimate, msg.header.stamp, node.odom_frame, node.base_frame,
+                          node.publish_tf)
+
+    def _update_extrinsic(self, frame_id: str) -> bool:
+        """Apply the TF mounting of ``frame_id``; False while it is unknown."""
+        mounting = self._tf.mounting(frame_id)
+        if mounting is None:
+            return False
+        if self.params.tf_mounting != mounting:
+            self.params.tf_mounting = mounting
+            self.pipeline.configure(self.params.pipeline_config())
+        return True
+
+    def _publish(self, estimate: OdometryEstimate, stamp: Time, odom_frame: str,
+                 base_frame: str, publish_tf: bool) -> None:
+        """Publish odometry, pose and (optionally) TF with the scan's stamp."""
+        odometry = odometry_to_msg(estimate, stamp, odom_frame, base_frame)
+        if odometry is None:
+            self.get_logger().error('non-finite pose estimate not published',
+                                    throttle_duration_sec=5.0)
+            return
+        self._odom_pub.publish(odometry)
+        self._pose_pub.publish(pose_stamped_to_msg(estimate, stamp, odom_frame))
+        if publish_tf:
+            self._tf.broadcast(transform_to_msg(estimate, stamp, odom_frame, base_frame))
+
+    def _on_reset(self, request: Trigger.Request,
+                  response: Trigger.Response) -> Trigger.Response:
+        """Restart integration at the origin with the next scan as reference."""
+        with self._lock:
+            self.pipeline.reset()
+        response.success = True
+        response.message = 'odometry reset to the origin; the next scan is the new reference'
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_set_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        """Restart integration from a given pose (in ``odom_frame``)."""
+        odom_frame = self.params.settings.node.odom_frame
+        if msg.header.frame_id not in ('', odom_frame):
+            self.get_logger().warning(
+                f'~/set_pose ignored: pose is in {msg.header.frame_id!r}, not {odom_frame!r}')
+            return
+        try:
+            pose, covariance = initial_pose_from_msg(msg)
+        except ValueError as error:
+            self.get_logger().warning(f'~/set_pose ignored: {error}')
+            return
+        with self._lock:
+            self.pipeline.reset(pose, covariance)
+        self.get_logger().info(
+            f'odometry restarted from x={pose[0]:.3f} y={pose[1]:.3f} yaw={pose[2]:.3f}')
+
+    def _publish_diagnostics(self) -> None:
+        """Publish the node's health (timer callback, once a second)."""
+        with self._slot_lock:
+            received = self._received
+        with self._lock:
+            snapshot = Snapshot(
+                time.monotonic(), received, self.pipeline.counters.copy(),
+                np.array(self.pipeline.processing_times), self.pipeline.matcher.name,
+                self.pipeline.config.motion.prior, self._scan_sub.topic_name)
+        status = self._reporter.status(snapshot, self.params.settings.node)
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics_pub.publish(msg)
+
+    def shutdown(self) -> None:
+        """Stop the worker thread (before the node is destroyed)."""
+        if not hasattr(self, '_stop'):
+            return
+        self._stop.set()
+        self._wake.set()
+        worker = getattr(self, '_worker', None)
+        if worker is not None and worker.is_alive():
+            worker.join(timeout=5.0)
+
+
+def missing_params_file(args: list[str]) -> str | None:
+    """Return the first ``--params-file`` argument that is not a readable file."""
+    for flag, value in zip(args, args[1:]):
+        if flag == '--params-file' and not os.access(value, os.R_OK):
+            return value
+    return None
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C; return the exit code (2 for bad parameters)."""
+    missing = missing_params_file(sys.argv if args is None else args)
+    if missing is not None:
+        print(f'laser_odom_node: error: params file not found: {missing}', file=sys.stderr)
+        return 2
+    try:
+        rclpy.init(args=args)
+    except Exception as error:  # malformed --ros-args or an unreadable params file
+        message = str(error).strip().splitlines()
+        print(f'laser_odom_node: error: {message[0] if message else error!r}', file=sys.stderr)
+        return 2
+    node = None
+    code = 0
+    try:
+        # Built before the node so that a Ctrl-C at any later moment finds it complete.
+        executor = SingleThreadedExecutor()
+        node = LaserOdomNode()
+        executor.add_node(node)
+        executor.spin()
+    except StartupError as error:
+        print(f'laser_odom_node: error: {error}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.shutdown()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,254 @@
+"""DDS test harness: the real node in its own process, a test-side rclpy peer, simulated data.
+
+Every test module picks its own ``ROS_DOMAIN_ID`` so parallel test runs cannot talk to
+each other. Waiting is always on a condition (discovery, a message with a given stamp,
+a log line) with a generous deadline; nothing is asserted on elapsed time.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Callable
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
+from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg
+
+from laser_odom.core import se2
+from laser_odom.core.scan import LaserScan
+from laser_odom.core.simulation import geometry as geo
+from laser_odom.core.simulation import World
+from laser_odom.ros.conversions import ns_to_stamp, planar_pose_msg, scan_to_msg, stamp_to_ns
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TEST_WORLD = World(
+    'test_room', 'a 10 x 7.5 m room with boxes and pillars; every scan well constrained',
+    geo.stack(geo.rectangle(-3.0, -2.5, 7.0, 5.0), geo.box(1.5, 1.2, 1.0, 0.6, 0.3),
+              geo.pillar(4.5, -1.2, 0.25), geo.box(-2.0, 3.8, 1.2, 0.8),
+              geo.box(6.0, 4.0, 0.8, 1.2, 0.5), geo.pillar(-1.8, -1.5, 0.3),
+              geo.box(3.0, 4.3, 1.5, 0.5)),
+    np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 2.5], [-1.0, 2.5], [-1.0, 0.0]]),
+    corner_radius=0.7)
+"""A compact structured room: the point-to-line matchers track it to millimetres."""
+
+
+def unique_domain_id() -> int:
+    """Return a ROS domain id in 1..200 unlikely to be used by a concurrent test run."""
+    taken = os.environ.get('ROS_DOMAIN_ID')
+    rng = random.Random(os.getpid() * 7919 + time.time_ns())
+    while True:
+        domain = rng.randint(1, 200)
+        if str(domain) != taken:
+            return domain
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float, step: float = 0.05) -> bool:
+    """Poll ``predicate`` until it holds or ``timeout`` seconds pass."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(step)
+    return predicate()
+
+
+class NodeProcess:
+    """``python -m laser_odom.ros.node --ros-args ...`` with its output in a file."""
+
+    def __init__(self, domain_id: int, ros_args: list[str]) -> None:
+        """Start the node process."""
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), RCUTILS_COLORIZED_OUTPUT='0',
+                   PYTHONUNBUFFERED='1')
+        env['PYTHONPATH'] = os.pathsep.join(
+            p for p in (str(ROOT), os.environ.get('PYTHONPATH', '')) if p)
+        self._log = tempfile.NamedTemporaryFile('w+', prefix='laser_odom_node_', suffix='.log')
+        self._final: str | None = None
+        self.process = subprocess.Popen(
+            [sys.executable, '-m', 'laser_odom.ros.node', '--ros-args', *ros_args],
+            cwd=ROOT, env=env, stdout=self._log, stderr=subprocess.STDOUT)
+
+    def output(self) -> str:
+        """Return everything the node printed so far."""
+        if self._final is not None:
+            return self._final
+        with open(self._log.name) as log:
+            return log.read()
+
+    def wait_for_output(self, text: str, timeout: float = 30.0) -> bool:
+        """Wait until ``text`` appears in the node's output (or the node exits)."""
+        return wait_for(lambda: text in self.output() or self.process.poll() is not None,
+                        timeout) and text in self.output()
+
+    def interrupt(self, timeout: float = 20.0) -> int:
+        """Send SIGINT (Ctrl-C) and return the exit code."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+        try:
+            return self.process.wait(timeout)
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Kill the process if it still runs, and drop the log."""
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(10)
+        if self._final is None:
+            self._final = self.output()
+            self._log.close()
+
+
+class Peer:
+    """A test-side rclpy node in its own context on the test's domain."""
+
+    def __init__(self, domain_id: int) -> None:
+        """Initialise a private context (no signal handlers: pytest keeps Ctrl-C)."""
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('laser_odom_test_peer', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.diagnostics: list[tuple[float, DiagnosticArray]] = []
+        self.node.create_subscription(
+            DiagnosticArray, '/diagnostics',
+            lambda msg: self.diagnostics.append((time.monotonic(), msg)), 100)
+
+    def spin_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        """Process callbacks until ``predicate`` holds or ``timeout`` seconds pass."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if predicate():
+                return True
+            self.executor.spin_once(timeout_sec=0.02)
+        return predicate()
+
+    def spin_for(self, seconds: float) -> None:
+        """Process callbacks for a while (to let messages arrive, never as an assertion)."""
+        self.spin_until(lambda: False, seconds)
+
+    def statuses(self, name: str) -> list[tuple[float, dict[str, str], object]]:
+        """Return ``(receive time, values, status)`` of every diagnostics status ``name``."""
+        return [(t, {kv.key: kv.value for kv in s.values}, s)
+                for t, msg in self.diagnostics for s in msg.status if s.name == name]
+
+    def close(self) -> None:
+        """Destroy the node and shut the context down."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+class OdometryClient:
+    """Publishes scans to one node instance and collects its odometry and pose."""
+
+    def __init__(self, peer: Peer, namespace: str = '') -> None:
+        """Create the publishers and subscriptions under ``namespace``."""
+        self.peer = peer
+        self.ns = namespace.rstrip('/')
+        node = peer.node
+        reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        self.scan_pub = node.create_publisher(LaserScanMsg, f'{self.ns}/scan', 10)
+        self.odom: dict[int, list[Odometry]] = {}
+        self.pose: dict[int, list[PoseStamped]] = {}
+        self.order: list[int] = []
+        node.create_subscription(Odometry, f'{self.ns}/odom', self._on_odom, reliable)
+        node.create_subscription(PoseStamped, f'{self.ns}/pose', self._on_pose, reliable)
+
+    def _on_odom(self, msg: Odometry) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.odom.setdefault(stamp, []).append(msg)
+        self.order.append(stamp)
+
+    def _on_pose(self, msg: PoseStamped) -> None:
+        self.pose.setdefault(stamp_to_ns(msg.header.stamp), []).append(msg)
+
+    def wait_ready(self, timeout: float = 30.0) -> bool:
+        """Wait until the node's scan subscription and output publishers are discovered."""
+        node = self.peer.node
+        return self.peer.spin_until(
+            lambda: (self.scan_pub.get_subscription_count() >= 1
+                     and node.count_publishers(f'{self.ns}/odom') >= 1
+                     and node.count_publishers(f'{self.ns}/pose') >= 1), timeout)
+
+    def has_output(self, stamp_ns: int) -> bool:
+        """Tell whether odometry and pose for a stamp have arrived."""
+        return stamp_ns in self.odom and stamp_ns in self.pose
+
+    def send(self, scan: LaserScan, timeout: float = 15.0,
+             before: Callable[[], None] | None = None) -> Odometry:
+        """Publish a scan and wait for its odometry (re-sent if lost on the wire)."""
+        msg = scan_to_msg(scan)
+        for _ in range(3):
+            if before is not None:
+                before()
+            self.scan_pub.publish(msg)
+            if self.peer.spin_until(lambda: self.has_output(scan.stamp_ns), timeout / 3):
+                return self.odom[scan.stamp_ns][-1]
+        raise AssertionError(f'no odometry for the scan stamped {scan.stamp_ns}')
+
+
+def odometry_pose(msg: Odometry | PoseStamped) -> np.ndarray:
+    """Return ``[x, y, yaw]`` of an Odometry or PoseStamped message."""
+    pose = msg.pose.pose if isinstance(msg, Odometry) else msg.pose
+    q = pose.orientation
+    return se2.pose(pose.position.x, pose.position.y,
+                    se2.quaternion_to_yaw(q.x, q.y, q.z, q.w))
+
+
+def pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Return the translation [m] and absolute yaw [rad] error of a pose."""
+    delta = se2.relative(truth, estimate)
+    return float(np.hypot(delta[0], delta[1])), abs(float(delta[2]))
+
+
+def call(peer: Peer, future: Future, timeout: float = 15.0):
+    """Spin until a service future completes and return its result."""
+    assert peer.spin_until(future.done, timeout), 'service call timed out'
+    return future.result()
+
+
+def latest_status(peer: Peer, name: str, predicate, timeout: float = 10.0):
+    """Wait for a diagnostics status of ``name`` whose values satisfy ``predicate``."""
+    found = []
+
+    def check() -> bool:
+        found[:] = [(v, s) for _, v, s in peer.statuses(name) if predicate(v, s)]
+        return bool(found)
+
+    assert peer.spin_until(check, timeout), peer.statuses(name)[-1:]
+    return found[-1]
+
+
+def odometry_msg(stamp_ns: int, pose: np.ndarray) -> Odometry:
+    """Return a wheel odometry message."""
+    msg = Odometry()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id, msg.child_frame_id = 'odom_wheel', 'base_link'
+    msg.pose.pose = planar_pose_msg(pose)
+    return msg
+
+
+def imu_msg(stamp_ns: int, yaw_rate: float) -> Imu:
+    """Return an IMU message with a yaw rate and no orientation."""
+    msg = Imu()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.orientation_covariance[0] = -1.0  # no orientation: integrate the yaw rate
+    msg.angular_velocity.z = float(yaw_rate)
+    return msg
