@@ -14,18 +14,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from laser_odom.core.matchers.correspondences import k_nearest
 from laser_odom.core.scan import ScanPoints
 
 
 @dataclass
 class SurfaceNormals:
-    """Normals (N, 2), curvature (N,), neighbourhood covariance (N, 2, 2), validity (N,)."""
+    """Normals (N, 2), curvature (N,), neighbourhood covariance (N, 2, 2), validity (N,).
+
+    ``count`` (N,) is the size of each neighbourhood (the point included): how many
+    points the covariance, hence the normal's precision, rests on.
+    """
 
     normals: np.ndarray
     curvature: np.ndarray
     covariance: np.ndarray
     valid: np.ndarray
+    count: np.ndarray | None = None
 
 
 def estimate_normals(scan: ScanPoints, neighbours: int = 10, radius: float = 0.3,
@@ -38,6 +42,8 @@ def estimate_normals(scan: ScanPoints, neighbours: int = 10, radius: float = 0.3
     normal is zero. Normals point towards ``sensor_origin`` (default: the origin of the
     scan's frame).
     """
+    # Imported here: the matchers package imports this module (ICP's information).
+    from laser_odom.core.matchers.correspondences import k_nearest
     origin = np.zeros(2) if sensor_origin is None else np.asarray(sensor_origin, float)
     key = ('normals', neighbours, radius, min_neighbours, tuple(origin))
     cached = scan.cache.get(key)
@@ -46,7 +52,7 @@ def estimate_normals(scan: ScanPoints, neighbours: int = 10, radius: float = 0.3
     n = len(scan)
     if n == 0:
         result = SurfaceNormals(np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2, 2)),
-                                np.zeros(0, dtype=bool))
+                                np.zeros(0, dtype=bool), np.zeros(0, dtype=int))
         scan.cache[key] = result
         return result
     distance, index = k_nearest(scan.tree, scan.points, neighbours, radius)
@@ -74,6 +80,6 @@ def estimate_normals(scan: ScanPoints, neighbours: int = 10, radius: float = 0.3
         curvature = np.where(total > 0.0, smallest / total, 0.0)
     valid = (count >= min_neighbours) & (total > 0.0)
     normals[~valid] = 0.0
-    result = SurfaceNormals(normals, curvature, cov, valid)
+    result = SurfaceNormals(normals, curvature, cov, valid, count)
     scan.cache[key] = result
     return result

@@ -33,12 +33,13 @@ from rclpy.qos import qos_profile_sensor_data, QoSProfile
 from sensor_msgs.msg import LaserScan as LaserScanMsg
 from std_srvs.srv import Trigger
 
+from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
 from laser_odom.ros.conversions import (
     initial_pose_from_msg, odometry_to_msg, pose_stamped_to_msg, scan_from_msg, stamp_to_ns,
     transform_to_msg)
 from laser_odom.ros.diagnostics import (
-    DiagnosticsReporter, REJECTED_PREFIX, ScanGapCounter, Snapshot)
+    DiagnosticsReporter, ScanGapCounter, Snapshot)
 from laser_odom.ros.extrinsic import TfInterface
 from laser_odom.ros.live import LiveParameters, StartupError
 from laser_odom.ros.priors import PriorInputs
@@ -76,7 +77,8 @@ class LaserOdomNode(Node):
         self.params = LiveParameters(self, self._on_settings)
         settings = self.params.settings
         self._tf = TfInterface(self, settings.node.base_frame, settings.node.use_tf_extrinsic)
-        self.pipeline = OdometryPipeline(self.params.pipeline_config())
+        self.pipeline = OdometryPipeline(
+            self.params.pipeline_config(), events=EventLog(self.get_logger().warning))
         self._priors = PriorInputs(self, settings.priors)
         self._priors.configure(settings.pipeline.motion.prior, settings.priors)
         self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
@@ -185,17 +187,7 @@ class LaserOdomNode(Node):
             if (prior in ('odom', 'imu') and step is None and yaw is None
                     and last is not None and self.pipeline.keyframe is not None):
                 self._priors.warn_missing(prior, scan.stamp_ns)
-            before = counters.copy()
             estimate = self.pipeline.process(scan, step, yaw)
-            if estimate is None:
-                reasons = sorted(k for k in counters if counters[k] > before[k]
-                                 and k != 'scans_in')
-                self.get_logger().warning(
-                    f'scan {scan.stamp_ns} skipped ({", ".join(reasons) or "unknown"}); '
-                    'see /diagnostics for counts', throttle_duration_sec=5.0)
-            if estimate is not None and estimate.status == 'rejected' and estimate.match:
-                reason = estimate.match.extra.get('rejection', 'unknown')
-                counters[REJECTED_PREFIX + reason] += 1
             node = self.params.settings.node
         if estimate is not None:
             self._publish(estimate, msg.header.stamp, node.odom_frame, node.base_frame,
