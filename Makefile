@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 OUT ?= out
 DEMO_DOMAIN ?= 42
 
-.PHONY: all venv test lint demo bench soak clean
+.PHONY: all venv test lint demo bench soak docs clean
 
 all: test
 
@@ -44,6 +44,10 @@ bench: $(STAMP)
 
 soak: $(STAMP)
 	$(BIN)/python -m laser_odom.tools.soak --scans 100000
+
+docs: $(STAMP)
+	$(BIN)/python -m laser_odom.ros.default_params > config/default.yaml
+	$(BIN)/python -m laser_odom.ros.default_params --readme README.md
 
 clean:
 	rm -rf $(VENV) $(OUT) build install log *.egg-info
