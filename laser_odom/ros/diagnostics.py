@@ -10,7 +10,7 @@ recent processing times, so the status recovers as soon as the problem does.
 from __future__ import annotations
 
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterable
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -71,12 +71,19 @@ class Snapshot:
     matcher: str
     prior: str
     scan_topic: str
+    latencies: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Recent times from a scan's receipt to its odometry being published [s]."""
 
 
 def skip_reasons(counters: Counter) -> dict[str, int]:
     """Return the counters that name why a scan was skipped."""
     return {k: v for k, v in sorted(counters.items()) if v
             and k not in OUTCOMES and k not in EVENTS and not k.startswith(REJECTED_PREFIX)}
+
+
+def _milliseconds(seconds: np.ndarray, percentile: float) -> str:
+    """Return a percentile of durations in milliseconds, or 'n/a' for none."""
+    return f'{np.percentile(seconds, percentile) * 1e3:.2f}' if len(seconds) else 'n/a'
 
 
 def _values(pairs: Iterable[tuple[str, object]]) -> list[KeyValue]:
@@ -143,6 +150,8 @@ class DiagnosticsReporter:
             ('failure rate (last period)', f'{failure_rate:.3f}'),
             ('processing time median [ms]', f'{median * 1e3:.2f}'),
             ('processing time p95 [ms]', f'{p95 * 1e3:.2f}'),
+            ('latency median [ms]', _milliseconds(now.latencies, 50)),
+            ('latency p95 [ms]', _milliseconds(now.latencies, 95)),
             ('input rate [Hz]', f'{received / period:.2f}'),
         ]
         pairs += [(f'skipped: {k}', v) for k, v in skipped.items()]

@@ -16,6 +16,7 @@ as ``skipped_backlog``. ``~/reset`` (``std_srvs/Trigger``) and ``~/set_pose``
 
 from __future__ import annotations
 
+from collections import deque
 import os
 import sys
 import threading
@@ -53,6 +54,9 @@ SCAN_QOS = QoSProfile(
 DIAGNOSTICS_PERIOD = 1.0
 """Seconds between two diagnostics reports."""
 
+LATENCY_WINDOW = 1000
+"""Recent receipt-to-publish latencies kept for /diagnostics."""
+
 
 class LaserOdomNode(Node):
     """Scan-to-scan laser odometry as a ROS 2 node (node name ``laser_odom``)."""
@@ -86,6 +90,8 @@ class LaserOdomNode(Node):
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._slot_lock = threading.Lock()
         self._slot: LaserScanMsg | None = None
+        self._slot_received = 0.0
+        self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._overwritten = 0
         self._missed = 0
         self._gaps = ScanGapCounter()
@@ -146,7 +152,7 @@ class LaserOdomNode(Node):
             self._missed += self._gaps.missed(stamp_to_ns(msg.header.stamp), max_gap_ns)
             if self._slot is not None:
                 self._overwritten += 1
-            self._slot = msg
+            self._slot, self._slot_received = msg, time.monotonic()
         self._wake.set()
 
     def _work(self) -> None:
@@ -156,20 +162,22 @@ class LaserOdomNode(Node):
                 continue
             self._wake.clear()
             with self._slot_lock:
-                msg, skipped = self._slot, {'skipped_backlog': self._overwritten,
-                                            'missed_scans': self._missed}
+                msg, received = self._slot, self._slot_received
+                skipped = {'skipped_backlog': self._overwritten,
+                           'missed_scans': self._missed}
                 self._slot, self._overwritten, self._missed = None, 0, 0
             if msg is None:
                 continue
             try:
-                self._process(msg, skipped)
+                if self._process(msg, skipped):
+                    self._latencies.append(time.monotonic() - received)
             except Exception as error:  # keep running: one bad scan must not stop odometry
                 if self._stop.is_set() or not self.context.ok():
                     return
                 self.get_logger().error(f'failed to process a scan: {error!r}')
 
-    def _process(self, msg: LaserScanMsg, skipped: dict[str, int]) -> None:
-        """Run one scan through the pipeline and publish the result.
+    def _process(self, msg: LaserScanMsg, skipped: dict[str, int]) -> bool:
+        """Run one scan through the pipeline and publish the result; True if published.
 
         ``skipped`` counts the scans that never reached the pipeline since the last
         call: overwritten in the slot, or missing from the stamps (see :mod:`.diagnostics`).
@@ -180,7 +188,7 @@ class LaserOdomNode(Node):
             counters.update({k: v for k, v in skipped.items() if v})
             if self._tf.use_extrinsic and not self._update_extrinsic(scan.frame_id):
                 counters['extrinsic_missing'] += 1
-                return
+                return False
             prior = self.pipeline.config.motion.prior
             last = self.pipeline.last_stamp_ns
             step, yaw = self._priors.prior(prior, last, scan.stamp_ns)
@@ -189,9 +197,10 @@ class LaserOdomNode(Node):
                 self._priors.warn_missing(prior, scan.stamp_ns)
             estimate = self.pipeline.process(scan, step, yaw)
             node = self.params.settings.node
-        if estimate is not None:
-            self._publish(estimate, msg.header.stamp, node.odom_frame, node.base_frame,
-                          node.publish_tf)
+        if estimate is None:
+            return False
+        return self._publish(estimate, msg.header.stamp, node.odom_frame, node.base_frame,
+                             node.publish_tf)
 
     def _update_extrinsic(self, frame_id: str) -> bool:
         """Apply the TF mounting of ``frame_id``; False while it is unknown."""
@@ -204,17 +213,18 @@ class LaserOdomNode(Node):
         return True
 
     def _publish(self, estimate: OdometryEstimate, stamp: Time, odom_frame: str,
-                 base_frame: str, publish_tf: bool) -> None:
-        """Publish odometry, pose and (optionally) TF with the scan's stamp."""
+                 base_frame: str, publish_tf: bool) -> bool:
+        """Publish odometry, pose and (optionally) TF with the scan's stamp; True if sent."""
         odometry = odometry_to_msg(estimate, stamp, odom_frame, base_frame)
         if odometry is None:
             self.get_logger().error('non-finite pose estimate not published',
                                     throttle_duration_sec=5.0)
-            return
+            return False
         self._odom_pub.publish(odometry)
         self._pose_pub.publish(pose_stamped_to_msg(estimate, stamp, odom_frame))
         if publish_tf:
             self._tf.broadcast(transform_to_msg(estimate, stamp, odom_frame, base_frame))
+        return True
 
     def _on_reset(self, request: Trigger.Request,
                   response: Trigger.Response) -> Trigger.Response:
@@ -251,7 +261,8 @@ class LaserOdomNode(Node):
             snapshot = Snapshot(
                 time.monotonic(), received, self.pipeline.counters.copy(),
                 np.array(self.pipeline.processing_times), self.pipeline.matcher.name,
-                self.pipeline.config.motion.prior, self._scan_sub.topic_name)
+                self.pipeline.config.motion.prior, self._scan_sub.topic_name,
+                np.array(self._latencies))
         status = self._reporter.status(snapshot, self.params.settings.node)
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
