@@ -116,6 +116,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help='folder holding the real logs (default: ../shared/data)')
     parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    live = parser.add_argument_group(
+        'live', 'stream simulated scans over DDS to a laser_odom_node per matcher')
+    live.add_argument('--live', action='store_true',
+                      help='run the live benchmark instead of the offline table')
+    live.add_argument('--rate', type=float, default=40.0, help='scan rate [Hz] (default 40)')
+    live.add_argument('--beams', type=int, default=1081, help='beams per scan (default 1081)')
+    live.add_argument('--duration', type=float, default=60.0,
+                      help='seconds of scans per matcher (default 60)')
     return parser.parse_args(argv)
 
 
@@ -165,6 +173,8 @@ def run(args: argparse.Namespace) -> list[BenchRow]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark and print its table; 2 on a usage or data error."""
     args = parse_args(argv)
+    if args.live:
+        return main_live(args)
     try:
         rows = run(args)
     except (DatasetError, ValueError) as err:
@@ -179,6 +189,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         payload = {'machine': machine_line().lstrip('# '),
                    'rows': [row.as_dict() for row in rows]}
         args.json.write_text(json.dumps(payload, indent=2) + '\n')
+    return 0
+
+
+def main_live(args: argparse.Namespace) -> int:
+    """Run the live (DDS) benchmark and print its table."""
+    try:
+        matchers = _split(args.matchers, matcher_names(), 'matcher')
+        if args.rate <= 0 or args.beams < 2 or args.duration <= 0:
+            raise ValueError('--rate and --duration must be positive, --beams at least 2')
+        from laser_odom.tools.bench_live import format_live, run_live
+        rows = run_live(matchers, args.beams, args.rate, args.duration)
+    except (ValueError, RuntimeError) as err:
+        print(f'laser_odom_bench: error: {err}', file=sys.stderr)
+        return 2
+    print(machine_line())
+    print(format_live(rows, args.beams, args.rate, args.duration))
+    if args.json is not None:
+        args.json.write_text(json.dumps({'machine': machine_line().lstrip('# '),
+                                         'live': [vars(row) for row in rows]}, indent=2))
     return 0
 
 
