@@ -16,6 +16,10 @@ from laser_odom.core import se2
 from laser_odom.core.config import MotionConfig
 
 
+MIN_VELOCITY_DT = 0.005
+"""Shortest scan interval [s] from which a velocity is estimated."""
+
+
 class MotionModel:
     """Predicts the motion between scans from the last velocity or an external prior."""
 
@@ -53,8 +57,15 @@ class MotionModel:
         return constant_velocity
 
     def update(self, step: se2.Pose, dt: float) -> None:
-        """Record the estimated motion of the last step."""
-        if dt > 0.0 and dt <= self.config.max_scan_gap and se2.is_finite_pose(step):
-            self.velocity = np.array(step, dtype=float) / dt
-        else:
+        """Record the estimated motion of the last step.
+
+        A step over a gap longer than ``max_scan_gap`` (or a non-finite one) leaves the
+        robot assumed at rest. A step over less than ``MIN_VELOCITY_DT`` (scans whose
+        stamps nearly coincide, as in re-stamped logs) says nothing reliable about
+        speed - millimetres of noise over a microsecond would be km/s - so the previous
+        velocity is kept.
+        """
+        if not (0.0 < dt <= self.config.max_scan_gap and se2.is_finite_pose(step)):
             self.velocity = np.zeros(3)
+        elif dt >= MIN_VELOCITY_DT:
+            self.velocity = np.array(step, dtype=float) / dt

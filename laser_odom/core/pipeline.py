@@ -174,7 +174,13 @@ class OdometryPipeline:
         step = se2.relative(self.pose, new_pose)
         step_covariance = verdict.covariance
         self.pose, self.pose_covariance = new_pose, 0.5 * (new_covariance + new_covariance.T)
-        self.motion.update(step, dt)
+        if verdict.status == 'rejected':
+            # The prediction may be what was wrong: keeping its velocity would make every
+            # later (correct) match a large correction, and the odometry would run away
+            # on the prediction. The next match starts from rest instead.
+            self.motion.reset()
+        else:
+            self.motion.update(step, dt)
         if verdict.status != 'rejected' and self._keyframe_expired(verdict.pose):
             self._set_keyframe(current)
         twist = step / dt if dt > 0 else np.zeros(3)
