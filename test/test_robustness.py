@@ -26,10 +26,10 @@ def malformed_scan(rng: np.random.Generator, stamp_ns: int) -> LaserScan:
     increment = 2 * math.pi / max(n, 1) * rng.uniform(0.1, 1.0)
     angle_min = rng.uniform(-math.pi, 0.0)
     ranges = rng.uniform(0.1, 15.0, n)
-    fields = dict(stamp_ns=stamp_ns, angle_min=angle_min,
-                  angle_max=angle_min + increment * max(n - 1, 0),
-                  angle_increment=increment, range_min=0.05, range_max=20.0,
-                  ranges=ranges, intensities=None, frame_id='laser')
+    fields = {'stamp_ns': stamp_ns, 'angle_min': angle_min,
+              'angle_max': angle_min + increment * max(n - 1, 0),
+              'angle_increment': increment, 'range_min': 0.05, 'range_max': 20.0,
+              'ranges': ranges, 'intensities': None, 'frame_id': 'laser'}
     for defect in rng.choice(MALFORMATIONS, size=rng.integers(1, 4), replace=False):
         if defect == 'empty':
             fields['ranges'] = np.zeros(0)
@@ -116,12 +116,12 @@ def test_each_rejection_has_its_reason():
     pipeline = OdometryPipeline(PipelineConfig(), events=EventLog(lambda _: None))
     base = good_scans(10)[0][0]
     cases = {
-        'empty_scan': dict(ranges=np.zeros(0)),
-        'non_finite_angles': dict(angle_increment=math.nan),
-        'zero_increment': dict(angle_increment=0.0),
-        'span_over_2pi': dict(angle_max=base.angle_min + 7.0, angle_increment=0.1),
-        'too_few_points': dict(ranges=np.full(len(base.ranges), np.inf)),
-        'bad_ranges': dict(ranges=['a', 'b']),
+        'empty_scan': {'ranges': np.zeros(0)},
+        'non_finite_angles': {'angle_increment': math.nan},
+        'zero_increment': {'angle_increment': 0.0},
+        'span_over_2pi': {'angle_max': base.angle_min + 7.0, 'angle_increment': 0.1},
+        'too_few_points': {'ranges': np.full(len(base.ranges), np.inf)},
+        'bad_ranges': {'ranges': ['a', 'b']},
     }
     for reason, change in cases.items():
         fields = dict(vars(base))

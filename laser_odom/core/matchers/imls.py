@@ -1,0 +1,358 @@
+"""IMLS-ICP: point-to-implicit-surface matching of informative points (2D IMLS-SLAM).
+
+Deschaud, "IMLS-SLAM: scan-to-model matching based on 3D data", ICRA 2018, section
+III, brought to 2D scan-to-scan odometry:
+
+1. The reference scan is an implicit surface, Kolluri's IMLS function I(x) over its
+   points and normals (eq. 1, :mod:`laser_odom.core.matchers.imls_surface`).
+2. A few informative current points are chosen once per match (section III-B): the
+   best ``points_per_list`` of each of four lists scoring x, y and +/- rotation
+   observability, weighted by planarity.
+3. Each iteration moves the selected points by the estimate, projects them onto the
+   surface, ``y_j = x_j - I(x_j) n_j`` with ``n_j`` the normal of the nearest
+   reference point (section III-C), and takes one Gauss-Newton step on the
+   point-to-plane cost ``sum_j w_j (n_j . (R x_j + t - y_j))^2`` (eq. 2).
+4. The information matrix is the point-to-plane Hessian over *all* current points
+   that have a surface value at the final estimate, not only the selected ones: the
+   selection deliberately balances the directions, so its Hessian would hide the
+   very degeneracy (a corridor) that the pipeline reads from the eigenvalues.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
+from laser_odom.core.matchers.imls_surface import (
+    implicit_surface, observability_scores, project_onto_surface, select_informative,
+    surface_model, SurfaceModel, SurfaceSample)
+from laser_odom.core.matchers.information import (
+    covariance_from_information, information_from_jacobians, point_to_line_jacobians,
+    residual_variance)
+from laser_odom.core.matchers.registry import register
+from laser_odom.core.matchers.robust import (
+    adaptive_keep_fraction, KERNELS, robust_weights, trimmed_mask)
+from laser_odom.core.normals import estimate_normals
+from laser_odom.core.params import param
+from laser_odom.core.scan import ScanPoints
+
+EIGEN_FLOOR = 1e-9
+"""Relative eigenvalue below which a Gauss-Newton direction is left unchanged."""
+
+
+COARSE_FRACTION = 0.25
+"""The approach uses the capture radius when the median surface distance at the guess
+exceeds this fraction of the fine radius."""
+
+SEARCH_OVERLAP = 0.7
+"""Heading search when fewer points than this fraction overlap the reference at the guess."""
+
+SEARCH_STEP = 0.03
+"""Heading step of the search [rad]."""
+
+SEARCH_STRIDE = 3
+"""The search probes every third point."""
+
+COARSE_SHARE = 2.0 / 3.0
+"""The approach ends after this share of ``max_iterations`` at the latest."""
+
+ALIGNED_COSINE = 0.9
+"""Coarse steps this well aligned with the previous one are extrapolated..."""
+
+MAX_GAIN = 8.0
+"""...doubling the step each time, up to this factor."""
+
+ROTATION_LEVER = 5.0
+"""Metres per radian when comparing steps (a typical range of the scan points)."""
+
+
+@dataclass
+class ImlsConfig(MatcherConfig):
+    """IMLS-ICP settings (defaults tuned on fr079, mit-csail and intel)."""
+
+    max_iterations: int = param(
+        20, 'Iteration cap of one match (Deschaud uses 20).', 1, 500)
+    convergence_translation: float = param(
+        1e-4, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
+    convergence_rotation: float = param(
+        1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
+    covariance_scale: float = param(
+        1.6, 'Factor on the match covariance from the residuals (inflation calibrated so '
+        'that the normalised estimation error squared on simulated runs is about 3).',
+        0.01, 1000.0)
+    h: float = param(
+        0.1, 'IMLS kernel width h [m]: W_i(x) = exp(-|x - p_i|^2 / h^2).', 0.001, 5.0)
+    radius: float = param(
+        0.3, 'Neighbourhood radius [m] of the IMLS sums (a few h); it is also the '
+        'capture range of a point.', 0.01, 10.0)
+    max_neighbours: int = param(
+        8, 'At most this many nearest reference points enter the IMLS sums.', 1, 100)
+    min_neighbours: int = param(
+        2, 'A point with fewer reference points within the radius has no surface '
+        'value and is skipped.', 1, 100)
+    points_per_list: int = param(
+        60, 'Informative points kept per observability list (x, y, +rot, -rot).', 1, 100000)
+    normal_neighbours: int = param(
+        10, 'Neighbours used to estimate a point normal.', 3, 100)
+    normal_radius: float = param(
+        0.6, 'Neighbourhood radius [m] of a point normal.', 0.01, 10.0)
+    normal_min_neighbours: int = param(
+        4, 'Points with fewer neighbours than this have no normal.', 2, 100)
+    max_correspondence_distance: float = param(
+        0.5, 'Capture radius [m]: after a poor guess the IMLS sums first reach this far '
+        '(if beyond the radius), so points still find the surface.', 0.01, 10.0)
+    coarse_tolerance: float = param(
+        0.01, 'The approach stage ends when a step moves less than this [m] and turns '
+        'less than this [rad]; the inliers are then fixed and the estimate refined.',
+        0.0, 1.0)
+    outlier_sigmas: float = param(
+        3.0, 'Points whose surface distance exceeds this many robust standard '
+        'deviations (1.4826 MAD) are outliers...', 0.5, 100.0)
+    min_keep_fraction: float = param(
+        0.6, '...but at least this fraction of the points is kept.', 0.05, 1.0)
+    projection_normal: str = param('nearest', 'x', choices=('nearest', 'mean'))
+    information_neighbours: int = param(
+        20, 'Neighbours of the smoother normals used for the information matrix (0: the '
+        'matching normals). Noise in a normal adds n_x^2 ~ sigma^2 of spurious information '
+        'along every wall, which would hide a corridor.', 0, 100)
+    search_angle: float = param(
+        0.35, 'When the guess overlaps the reference poorly, headings up to this far '
+        '[rad] from it are tried first (0 = off).', 0.0, 3.2)
+    robust_kernel: str = param(
+        'none', 'Robust kernel on the point-to-plane residuals.', choices=KERNELS)
+    robust_scale: float = param(
+        0.05, 'Scale [m] of the robust kernel.', 1e-4, 10.0)
+
+
+def point_to_plane_system(pose: se2.Pose, points: np.ndarray, normals: np.ndarray,
+                          targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return residuals ``n . (R p + t - y)`` and their Jacobians (IMLS-SLAM eq. 2).
+
+    The Jacobians are with respect to ``[x, y, theta]`` of ``pose`` itself (R = R(theta),
+    t = (x, y)), so the Gauss-Newton increment is added to the pose directly.
+    """
+    rotated = se2.transform_points(np.array([0.0, 0.0, pose[2]]), points)
+    residuals = np.einsum('nd,nd->n', rotated + pose[:2] - targets, normals)
+    return residuals, point_to_line_jacobians(rotated, normals)
+
+
+def gauss_newton_step(jacobians: np.ndarray, residuals: np.ndarray,
+                      weights: np.ndarray) -> np.ndarray:
+    """Return ``-H^+ J^T W r`` with ``H = J^T W J``; unconstrained directions stay put.
+
+    The pseudo-inverse drops eigen-directions weaker than ``EIGEN_FLOOR`` times the
+    strongest, so a corridor's free axis keeps the prediction instead of drifting.
+    """
+    weighted = jacobians * weights[:, None]
+    hessian = weighted.T @ jacobians
+    gradient = weighted.T @ residuals
+    values, vectors = np.linalg.eigh(hessian)
+    strongest = max(float(values[-1]), 1e-300)
+    inverse = np.where(values > EIGEN_FLOOR * strongest, 1.0 / np.maximum(values, 1e-300), 0.0)
+    return -(vectors * inverse) @ (vectors.T @ gradient)
+
+
+@register
+class ImlsMatcher(ScanMatcher):
+    """IMLS-ICP: informative current points against the reference's implicit surface."""
+
+    name = 'imls'
+    config_type = ImlsConfig
+    config: ImlsConfig
+
+    def _model(self, scan: ScanPoints) -> SurfaceModel:
+        """Return the cached surface model of a scan under this configuration."""
+        cfg = self.config
+        return surface_model(scan, cfg.normal_neighbours, cfg.normal_radius,
+                             cfg.normal_min_neighbours)
+
+    def _surface(self, model: SurfaceModel, queries: np.ndarray,
+                 radius: float | None = None) -> SurfaceSample:
+        """Evaluate the reference surface at ``queries`` (default: the fine radius)."""
+        cfg = self.config
+        return implicit_surface(model, queries, cfg.h, cfg.radius if radius is None else radius,
+                                cfg.max_neighbours, cfg.min_neighbours)
+
+    def _inliers(self, residuals: np.ndarray) -> np.ndarray:
+        """Return the residuals within ``outlier_sigmas`` robust standard deviations.
+
+        Adaptive trimming (:func:`adaptive_keep_fraction`, sigma = 1.4826 MAD), keeping
+        at least ``min_keep_fraction``: in a corridor a single passer-by's legs would
+        otherwise drag the weakly constrained axis.
+        """
+        cfg = self.config
+        keep = adaptive_keep_fraction(residuals, cfg.min_keep_fraction, 1.0,
+                                      cfg.outlier_sigmas)
+        return trimmed_mask(residuals, keep)
+
+    def _rotation_search(self, reference: ScanPoints, points: np.ndarray,
+                         guess: se2.Pose) -> se2.Pose:
+        """Re-seed the heading when the guess leaves most points off the reference.
+
+        A constant-velocity guess misses the heading most when the robot starts or
+        stops turning; ICP-type iterations do not recover a heading error of more than
+        a few degrees. If fewer than ``SEARCH_OVERLAP`` of (every third of) the points
+        lie within ``radius`` of a reference point, headings within ``search_angle``
+        of the guess are tried and the one with the largest overlap is kept.
+        """
+        cfg = self.config
+        probe = points[::SEARCH_STRIDE]
+        tree = reference.tree
+
+        def overlap(candidate: se2.Pose) -> float:
+            distance, _ = tree.query(se2.transform_points(candidate, probe),
+                                     distance_upper_bound=cfg.radius)
+            return float(np.mean(np.isfinite(distance)))
+
+        best, best_overlap = guess, overlap(guess)
+        if best_overlap >= SEARCH_OVERLAP:
+            return guess
+        count = int(np.floor(cfg.search_angle / SEARCH_STEP))
+        for offset in SEARCH_STEP * np.arange(-count, count + 1):
+            candidate = _advance(guess, np.array([0.0, 0.0, offset]))
+            value = overlap(candidate)
+            if value > best_overlap:
+                best, best_overlap = candidate, value
+        return best
+
+    def match(self, reference: ScanPoints, current: ScanPoints,
+              initial_guess: se2.Pose) -> MatchResult:
+        """Align ``current`` to ``reference`` starting from ``initial_guess``."""
+        cfg = self.config
+        estimate = np.array(initial_guess, dtype=float)
+        if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
+            return MatchResult.failure(estimate, reason='too few points')
+        ref_model = self._model(reference)
+        cur_model = self._model(current)
+        points = current.points
+        # Selection (section III-B) among current points that reach the surface at the
+        # initial guess, within the capture radius.
+        capture = max(cfg.radius, cfg.max_correspondence_distance)
+        if cfg.search_angle > 0.0:
+            estimate = self._rotation_search(reference, points, estimate)
+        sample = self._surface(ref_model, se2.transform_points(estimate, points), capture)
+        scores = observability_scores(points, cur_model.normals[:-1], cur_model.curvature)
+        selected = select_informative(scores, cur_model.usable[:-1] & sample.defined,
+                                      cfg.points_per_list)
+        if len(selected) < cfg.min_correspondences:
+            return MatchResult.failure(estimate, 0, len(selected),
+                                       'too few points on the surface')
+        chosen = points[selected]
+        sample = _subset(sample, selected)
+        # Two stages: the approach, until a step moves less than coarse_tolerance, then
+        # the refinement on a fixed inlier set. The approach reaches out to the capture
+        # radius only when the guess is off; after a good guess it keeps to the fine
+        # radius, where clutter a little off the walls has no surface value.
+        far = float(np.median(np.abs(sample.value))) > COARSE_FRACTION * cfg.radius
+        approach_radius = capture if far else cfg.radius
+        approach = True
+        converged = False
+        iterations = 0
+        previous_step = np.zeros(3)
+        gain = 1.0
+        gated = False
+        while iterations < cfg.max_iterations:
+            iterations += 1
+            if iterations > 1 or not far:
+                sample = self._surface(ref_model, se2.transform_points(estimate, chosen),
+                                       approach_radius if approach else cfg.radius)
+            ok = sample.defined
+            if not approach and not gated:
+                # Entering the refinement: fix the inlier set once (close to the
+                # solution, so that only true outliers stand out), so that the
+                # iterations do not cycle between sets.
+                inlier = np.zeros_like(ok)
+                inlier[ok] = self._inliers(sample.value[ok])
+                chosen, sample, ok = chosen[inlier], _subset(sample, inlier), ok[inlier]
+                gated, previous_step, gain = True, np.zeros(3), 1.0
+            if np.count_nonzero(ok) < cfg.min_correspondences:
+                return MatchResult.failure(estimate, iterations, int(np.count_nonzero(ok)),
+                                           'too few points on the surface')
+            normals = sample.normal[ok] if cfg.projection_normal == 'nearest' \
+                else sample.mean_normal[ok]
+            moved = se2.transform_points(estimate, chosen[ok])
+            targets = project_onto_surface(moved, sample.value[ok], normals)
+            residuals, jacobians = point_to_plane_system(estimate, chosen[ok], normals,
+                                                         targets)
+            weights = np.ones_like(residuals) if approach else robust_weights(
+                residuals, cfg.robust_kernel, cfg.robust_scale)
+            step = gauss_newton_step(jacobians, residuals, weights)
+            cosine = _cosine(step, previous_step)
+            if approach:
+                # Far from the solution, pairings change a little every iteration and
+                # the steps creep along one direction: extrapolate them (accelerated
+                # ICP, Besl & McKay 1992, section IV-C).
+                gain = min(2.0 * gain, MAX_GAIN) if cosine > ALIGNED_COSINE else 1.0
+            elif cosine < 0.0:
+                # The nearest-point normal jumps when the nearest point changes, so
+                # plain steps can cycle between two poses; shrink them until they settle.
+                gain *= 0.5
+            previous_step = step
+            estimate = _advance(estimate, gain * step)
+            if approach:
+                moved_by = max(float(np.hypot(step[0], step[1])), abs(float(step[2])))
+                approach = (moved_by >= cfg.coarse_tolerance
+                            and iterations < COARSE_SHARE * cfg.max_iterations)
+            elif self.converged_step(gain * step):
+                converged = True
+                break
+        return self._result(reference, current, estimate, converged, iterations,
+                            len(selected))
+
+    def _result(self, reference: ScanPoints, current: ScanPoints, estimate: se2.Pose,
+                converged: bool, iterations: int, selected: int) -> MatchResult:
+        """Score the final estimate over all current points with a surface value."""
+        cfg = self.config
+        usable = self._model(current).usable[:-1]
+        moved = se2.transform_points(estimate, current.points)
+        sample = self._surface(self._model(reference), moved)
+        normals = sample.normal
+        if cfg.information_neighbours > 0:
+            smooth = estimate_normals(reference, cfg.information_neighbours,
+                                      cfg.normal_radius, cfg.normal_min_neighbours)
+            nearest = np.minimum(sample.nearest, len(reference) - 1)
+            normals = smooth.normals[nearest]
+            usable = usable & smooth.valid[nearest]
+        ok = sample.defined & usable
+        count = int(np.count_nonzero(ok))
+        if count < cfg.min_correspondences:
+            return MatchResult.failure(estimate, iterations, count,
+                                       'too few points on the surface at the estimate')
+        inlier = self._inliers(sample.value[ok])
+        residuals = sample.value[ok][inlier]
+        weights = robust_weights(residuals, cfg.robust_kernel, cfg.robust_scale)
+        normals = normals[ok][inlier]
+        variance = residual_variance(residuals, weights)
+        information = information_from_jacobians(
+            point_to_line_jacobians(moved[ok][inlier] - estimate[:2], normals), weights,
+            variance)
+        return MatchResult(
+            pose=estimate, converged=converged, iterations=iterations,
+            inlier_ratio=count / len(current),
+            residual=float(np.sqrt(np.mean(np.square(residuals)))),
+            information=information, covariance=covariance_from_information(information),
+            correspondences=count, extra={'selected': selected})
+
+
+def _cosine(step: np.ndarray, previous: np.ndarray) -> float:
+    """Return the cosine between two steps, rotation as the arc at ``ROTATION_LEVER``."""
+    scale = np.array([1.0, 1.0, ROTATION_LEVER])
+    a, b = step * scale, previous * scale
+    norm = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return float(np.dot(a, b)) / norm if norm > 0.0 else 0.0
+
+
+def _advance(estimate: se2.Pose, step: np.ndarray) -> se2.Pose:
+    """Return ``estimate + step`` with the angle wrapped."""
+    moved = estimate + step
+    moved[2] = se2.wrap_angle(moved[2])
+    return moved
+
+
+def _subset(sample: SurfaceSample, keep: np.ndarray) -> SurfaceSample:
+    """Return the surface sample of the queries selected by ``keep``."""
+    return SurfaceSample(sample.value[keep], sample.normal[keep], sample.defined[keep],
+                         sample.count[keep], sample.mean_normal[keep], sample.nearest[keep])

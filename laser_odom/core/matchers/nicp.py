@@ -1,0 +1,303 @@
+"""NICP: normal-based ICP on extended points, solved by robust Gauss-Newton on SE(2).
+
+Serafin & Grisetti, "NICP: Dense Normal Based Point Cloud Registration", IROS 2015,
+for 2D scans. Each iteration pairs every current point with its nearest reference
+point, drops pairs that fail the NICP rules (undefined normal, distance, normal angle,
+curvature ratio), and takes one damped Gauss-Newton (Levenberg-Marquardt) step on the
+4-vector point-and-normal error weighted by the reference point's information and a
+robust kernel (IRLS). The error model is in :mod:`laser_odom.core.matchers.nicp_model`.
+The information of the result is ``sum w J^T Omega J`` at the solution; when it is
+ill conditioned (a featureless corridor) the result is flagged degenerate, with the
+same eigenvalue-ratio test the pipeline's acceptance applies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
+from laser_odom.core.matchers.information import covariance_from_information
+from laser_odom.core.matchers.nicp_model import (
+    associate, chi_squared, is_degenerate, nicp_surface, NicpSurface, normal_equations,
+    rotation_seed, SurfaceSettings)
+from laser_odom.core.matchers.registry import register
+from laser_odom.core.matchers.robust import KERNELS, robust_weights
+from laser_odom.core.params import param
+from laser_odom.core.scan import ScanPoints
+
+
+@dataclass
+class NicpConfig(MatcherConfig):
+    """NICP settings; the defaults are tuned on the fr079, MIT-CSAIL and Intel logs."""
+
+    max_iterations: int = param(
+        40, 'Iteration cap of one match.', 1, 500)
+    max_correspondence_distance: float = param(
+        0.5, 'Pairs farther apart than this [m] are not correspondences.', 0.01, 10.0)
+    convergence_translation: float = param(
+        1e-4, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
+    convergence_rotation: float = param(
+        1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
+    convergence_chi2: float = param(
+        0.01, '...or when the step changes e^T Omega e by less than this (a step '
+        'along a direction the scene hardly constrains, such as a corridor axis).',
+        0.0, 1e6)
+    normal_neighbours: int = param(
+        12, 'Neighbours (k nearest, the point included) of the normal estimate.', 2, 100)
+    normal_radius: float = param(
+        1.0, 'Normal neighbourhoods are limited to this radius [m].', 0.01, 10.0)
+    normal_min_neighbours: int = param(
+        3, 'A point with fewer neighbours than this has no normal.', 2, 100)
+    normal_extent: float = param(
+        0.1, 'Neighbours beyond the normal_min_neighbours nearest count only within this '
+        '[m] (dense scans: a fixed stretch of surface; sparse: the nearest few; 0 = off).',
+        0.0, 10.0)
+    information_neighbours: int = param(
+        20, 'Neighbours of the wider normal estimate behind the information of the '
+        'result (smoother normals claim less of a corridor axis).', 2, 100)
+    information_radius: float = param(
+        0.5, 'Radius [m] of the wider normal estimate behind the information.', 0.01, 10.0)
+    max_curvature: float = param(
+        0.3, 'Normals of points with a curvature above this are not defined (2D '
+        'curvature is at most 0.5).', 0.0, 0.5)
+    flat_curvature: float = param(
+        0.1, 'Below this curvature the surface is flat and its normal is weighted by '
+        'normal_information.', 0.0, 0.5)
+    point_sigma: float = param(
+        0.01, 'Range noise [m]: regularises the inverse neighbourhood covariance of the '
+        'point information.', 1e-5, 1.0)
+    tangent_sigma: float = param(
+        3.0, 'Along a flat surface a point is this uncertain [m]: a wall sample does not '
+        'tell where along the wall a point lies.', 0.0, 100.0)
+    smooth_points: bool = param(
+        True, 'Move each point on a flat surface onto the line fitted to its '
+        'neighbourhood (removes most of the range noise from the point error).')
+    normal_information: float = param(
+        100.0, 'Information [1/rad^2] of the normal error on flat surfaces (1 elsewhere).',
+        0.0, 1e6)
+    max_normal_angle: float = param(
+        0.5, 'Pairs whose normals differ by more than this [rad] are rejected.', 0.0,
+        math.pi)
+    max_curvature_ratio: float = param(
+        1.5, 'Pairs with |log(curvature ratio)| above this are rejected.', 0.0, 100.0)
+    curvature_floor: float = param(
+        0.01, 'Curvatures below this count as this in the curvature ratio.', 1e-9, 0.5)
+    robust_kernel: str = param(
+        'huber', 'Robust kernel on the Mahalanobis error: none, huber, cauchy, tukey.',
+        choices=KERNELS)
+    robust_scale: float = param(
+        3.0, 'Scale of the robust kernel, in Mahalanobis units.', 1e-6, 1e6)
+    damping: float = param(
+        1e-6, 'Levenberg-Marquardt damping, relative to the diagonal of H.', 0.0, 1e3)
+    restart_inlier_ratio: float = param(
+        0.5, 'A match that did not converge or paired fewer than this fraction of the '
+        'points is restarted from the normal-histogram rotation.', 0.0, 1.0)
+    restart_angle: float = param(
+        0.1, 'A match is also run from the normal-histogram rotation when it differs '
+        'from the guess by more than this [rad].', 0.0, math.pi)
+    restart_window: float = param(
+        0.6, 'The restart rotation is searched within this [rad] of the guess (0 = no '
+        'restarts).', 0.0, math.pi)
+    degeneracy_min_information: float = param(
+        400.0, 'The result is degenerate when a direction of its information, rotation '
+        "scaled by the scan's RMS range, is below this [1/m^2]: the pipeline "
+        "acceptance's test and default (acceptance.degeneracy_min_information).",
+        0.0, 1e12)
+    covariance_scale: float = param(
+        0.65, 'Factor on the match covariance (calibrated so that the normalised '
+        'estimation error squared of the steps of simulated runs is about 3).',
+        0.01, 1000.0)
+
+    def surface_settings(self) -> SurfaceSettings:
+        """Return the settings the per-scan surface depends on."""
+        return SurfaceSettings(
+            self.normal_neighbours, self.normal_radius, self.normal_min_neighbours,
+            self.normal_extent, self.information_neighbours, self.information_radius,
+            self.max_curvature, self.flat_curvature, self.point_sigma, self.tangent_sigma,
+            self.normal_information, self.curvature_floor, self.smooth_points)
+
+
+def _undoes(step: np.ndarray, previous: np.ndarray) -> bool:
+    """Tell whether ``step`` flips back along ``previous``.
+
+    Over 120 degrees apart and at least half as long: the pairing flips between two
+    sets, unlike an ordinary (small) Gauss-Newton correction of an overshoot.
+    """
+    length, previous_length = float(np.linalg.norm(step)), float(np.linalg.norm(previous))
+    return (float(np.dot(step, previous)) < -0.5 * length * previous_length
+            and length > 0.5 * previous_length)
+
+
+@dataclass
+class Linearisation:
+    """One linearisation of the NICP problem at a pose estimate.
+
+    ``H`` and ``g`` of the normal equations, the pair count, the RMS point-to-surface
+    distance [m] and the a-posteriori variance factor (weighted mean ``e^T Omega e``).
+    """
+
+    hessian: np.ndarray
+    gradient: np.ndarray
+    pairs: int
+    residual: float
+    variance_factor: float
+    terms: tuple
+
+    def reported_information(self, surface: NicpSurface) -> np.ndarray:
+        """Return ``sum w J^T Omega J`` with the debiased point information, scaled.
+
+        Divided by the variance factor (floored at 1: residuals larger than the
+        assumed noise lower the confidence, smaller ones never raise it).
+        """
+        rotated, rotated_normals, point_error, normal_error, ref_index, weights = self.terms
+        hessian, _ = normal_equations(rotated, rotated_normals, point_error, normal_error,
+                                      surface.info_report[ref_index],
+                                      surface.info_normal[ref_index], weights)
+        return hessian / max(self.variance_factor, 1.0)
+
+
+@register
+class NicpMatcher(ScanMatcher):
+    """Normal-based ICP with information-weighted, robust Gauss-Newton steps."""
+
+    name = 'nicp'
+    config_type = NicpConfig
+    config: NicpConfig
+
+    def match(self, reference: ScanPoints, current: ScanPoints,
+              initial_guess: se2.Pose) -> MatchResult:
+        """Align ``current`` to ``reference`` starting from ``initial_guess``.
+
+        When the match from the guess is poor (not converged, or fewer than
+        ``restart_inlier_ratio`` of the points paired), or the rotation that aligns the
+        normal orientation histograms differs from the guess by more than
+        ``restart_angle``, the match is also run from that rotation (with the guessed
+        and with zero translation) and the best-paired result is kept. The inlier
+        ratio counts the points with a defined normal: only they can be paired.
+        """
+        cfg = self.config
+        guess = np.array(initial_guess, dtype=float)
+        if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
+            return MatchResult.failure(guess, reason='too few points')
+        settings = cfg.surface_settings()
+        ref = nicp_surface(reference, settings)
+        cur = nicp_surface(current, settings)
+        if cur.index.size < cfg.min_correspondences:
+            return MatchResult.failure(guess, reason='too few normals')
+        length = current.length_scale
+        result = self._optimise(reference, ref, cur, guess, length)
+        if cfg.restart_window <= 0.0:
+            return result
+        theta = rotation_seed(ref, cur, float(guess[2]), cfg.restart_window)
+        disagree = abs(se2.wrap_angle(theta - guess[2])) > cfg.restart_angle
+        if self._good(result) and not disagree:
+            return result
+        for seed in (np.array([guess[0], guess[1], theta]), np.array([0.0, 0.0, theta])):
+            candidate = self._optimise(reference, ref, cur, seed, length)
+            candidate.extra['restarted'] = True
+            if self._better(candidate, result):
+                result = candidate
+            if self._good(result):
+                break
+        return result
+
+    def _good(self, result: MatchResult) -> bool:
+        """Tell whether a match needs no restart."""
+        return result.converged and result.inlier_ratio >= self.config.restart_inlier_ratio
+
+    @staticmethod
+    def _better(candidate: MatchResult, incumbent: MatchResult) -> bool:
+        """Prefer converged matches, then the larger paired fraction."""
+        return ((candidate.converged, candidate.inlier_ratio)
+                > (incumbent.converged, incumbent.inlier_ratio))
+
+    def _optimise(self, reference: ScanPoints, ref: NicpSurface, cur: NicpSurface,
+                  start: np.ndarray, length_scale: float) -> MatchResult:
+        """Run the robust Gauss-Newton iterations from ``start``; return the result.
+
+        The information of the result is ``sum w J^T Omega J`` at the last
+        linearisation, with the point information debiased for the noise of the
+        normals and divided by the a-posteriori variance factor (mean weighted
+        ``e^T Omega e`` per pair).
+        """
+        cfg = self.config
+        estimate = start.copy()
+        converged = False
+        iterations = 0
+        system = None
+        previous = np.zeros(3)
+        shrink = 1.0
+        for iterations in range(1, cfg.max_iterations + 1):
+            system = self._linearise(reference, ref, cur, estimate)
+            if system is None:
+                return MatchResult.failure(start, iterations, 0, 'too few pairs')
+            step = self._solve(system.hessian, system.gradient)
+            if step is None:
+                return MatchResult.failure(start, iterations, system.pairs, 'singular system')
+            if _undoes(step, previous):
+                # The step (nearly) undoes the previous one: the pairing flips between
+                # two sets. Shrinking the steps on every such reversal settles between
+                # them; ordinary Gauss-Newton corrections restore full steps.
+                shrink *= 0.5
+            else:
+                shrink = min(1.0, 2.0 * shrink)
+            step = shrink * step
+            previous = step
+            estimate = estimate + step
+            estimate[2] = se2.wrap_angle(estimate[2])
+            if (self.converged_step(step)
+                    or float(step @ system.hessian @ step) < cfg.convergence_chi2):
+                converged = True
+                break
+        information = system.reported_information(ref)
+        return MatchResult(
+            pose=estimate, converged=converged, iterations=iterations,
+            inlier_ratio=system.pairs / cur.index.size, residual=system.residual,
+            information=information, covariance=covariance_from_information(information),
+            correspondences=system.pairs,
+            degenerate=is_degenerate(information, length_scale,
+                                     cfg.degeneracy_min_information))
+
+    def _linearise(self, reference: ScanPoints, ref: NicpSurface, cur: NicpSurface,
+                   estimate: np.ndarray) -> Linearisation | None:
+        """Pair, filter and linearise at ``estimate``; None with too few pairs."""
+        cfg = self.config
+        c, s = math.cos(estimate[2]), math.sin(estimate[2])
+        rot_t = np.array([[c, s], [-s, c]])
+        rotated = cur.points_usable @ rot_t
+        rotated_normals = cur.normals_usable @ rot_t
+        moved = rotated + estimate[:2]
+        pick, ref_index = associate(
+            reference.tree, ref, moved, rotated_normals, cur.log_curvature_usable,
+            cur.usable_ones, cfg.max_correspondence_distance,
+            math.cos(cfg.max_normal_angle), cfg.max_curvature_ratio)
+        if pick.size < cfg.min_correspondences:
+            return None
+        point_error = moved[pick] - ref.points[ref_index]
+        normal_error = rotated_normals[pick] - ref.normals[ref_index]
+        info_point = ref.info_point[ref_index]
+        info_normal = ref.info_normal[ref_index]
+        chi2 = chi_squared(point_error, normal_error, info_point, info_normal)
+        weights = robust_weights(np.sqrt(chi2), cfg.robust_kernel, cfg.robust_scale)
+        hessian, gradient = normal_equations(rotated[pick], rotated_normals[pick], point_error,
+                                             normal_error, info_point, info_normal, weights)
+        distance = np.einsum('nd,nd->n', point_error, ref.normals[ref_index])
+        weight_sum = float(weights.sum())
+        return Linearisation(
+            hessian, gradient, int(pick.size), float(np.sqrt(np.mean(distance * distance))),
+            float(weights @ chi2) / max(weight_sum - 3.0, 1.0),
+            (rotated[pick], rotated_normals[pick], point_error, normal_error, ref_index,
+             weights))
+
+    def _solve(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray | None:
+        """Return the damped Gauss-Newton step ``-(H + mu diag H)^-1 g``, None if singular."""
+        damped = hessian + self.config.damping * np.diag(np.diag(hessian))
+        try:
+            step = -np.linalg.solve(damped, gradient)
+        except np.linalg.LinAlgError:
+            return None
+        return step if np.all(np.isfinite(step)) else None

@@ -1,0 +1,108 @@
+"""Exact closed-form step of PL-ICP: point-to-line least squares over SE(2).
+
+Censi, "An ICP variant using a point-to-line metric", ICRA 2008, Sec. IV and appendix
+(CSM's ``gpc_solve``): with ``x = (t_x, t_y, cos theta, sin theta)`` the sum of squared
+point-to-line errors is a quadratic in ``x`` under the constraint ``x3^2 + x4^2 = 1``;
+its Lagrange multiplier is a root of a fourth-degree polynomial, so the global minimum
+of each iteration is found exactly, without a generic optimiser or linearisation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from laser_odom.core import se2
+
+TRANSLATION_RIDGE = 1e-12
+"""Relative ridge on the translation block: an unconstrained direction (corridor axis)
+gets a zero increment instead of a singular solve."""
+
+
+def solve_point_to_line(points: np.ndarray, targets: np.ndarray, normals: np.ndarray,
+                        weights: np.ndarray | None = None) -> se2.Pose:
+    """Return the pose minimising ``sum w_i (n_i^T (R p_i + t - q_i))^2`` exactly.
+
+    Censi 2008, appendix: ``n^T (R p + t) = a^T x`` with
+    ``a = (n_x, n_y, n.p, n x p)`` and ``x = (t_x, t_y, cos theta, sin theta)``; see
+    :func:`solve_design` for the constrained minimisation.
+    """
+    nx, ny = normals[:, 0], normals[:, 1]
+    px, py = points[:, 0], points[:, 1]
+    design = np.column_stack((nx, ny, nx * px + ny * py, ny * px - nx * py))
+    offset = nx * targets[:, 0] + ny * targets[:, 1]
+    return solve_design(design, offset, weights)
+
+
+def solve_design(design: np.ndarray, offset: np.ndarray,
+                 weights: np.ndarray | None = None) -> se2.Pose:
+    """Minimise ``sum w_i (a_i^T x - b_i)^2`` over ``x = (t, cos, sin)`` on the circle.
+
+    The cost is ``x^T M x - 2 m^T x + c`` with ``M = sum w a a^T``, ``m = sum w b a``.
+    Stationarity of ``x^T M x - 2 m^T x + lambda (x3^2 + x4^2 - 1)`` gives
+    ``(M + lambda W) x = m`` (``W = diag(0, 0, 1, 1)``; Censi 2008, appendix).
+    Eliminating ``t`` leaves ``(S + lambda I) r = h`` for ``r = (cos, sin)`` with the
+    Schur complement ``S = D - B^T A^-1 B`` and ``h = m_r - B^T A^-1 m_t``; ``|r| = 1``
+    becomes ``|adj(S + lambda I) h|^2 = det(S + lambda I)^2``, a quartic in lambda.
+    Its largest real root makes ``S + lambda I`` positive semidefinite, which is the
+    global minimum on the circle; the other real roots are also scored, for safety.
+    """
+    if weights is None:
+        big_m = design.T @ design
+        small_m = design.T @ offset
+    else:
+        weighted = design * weights[:, None]
+        big_m = weighted.T @ design
+        small_m = weighted.T @ offset
+    # 2x2 algebra in Python floats: numpy's per-call overhead dominates at this size.
+    (a11, a12, b11, b12), (_, a22, b21, b22), (_, _, d11, d12), (_, _, _, d22) = \
+        big_m.tolist()
+    m1, m2, m3, m4 = small_m.tolist()
+    ridge = TRANSLATION_RIDGE * (a11 + a22) + 1e-300
+    a11, a22 = a11 + ridge, a22 + ridge
+    det_a = a11 * a22 - a12 * a12
+    i11, i12, i22 = a22 / det_a, -a12 / det_a, a11 / det_a
+    # K = B^T A^-1 (2x2), S = D - K B, h = m_r - K m_t.
+    k11, k12 = b11 * i11 + b21 * i12, b11 * i12 + b21 * i22
+    k21, k22 = b12 * i11 + b22 * i12, b12 * i12 + b22 * i22
+    s11 = d11 - (k11 * b11 + k12 * b21)
+    s12 = d12 - (k11 * b12 + k12 * b22)
+    s22 = d22 - (k21 * b12 + k22 * b22)
+    h1 = m3 - (k11 * m1 + k12 * m2)
+    h2 = m4 - (k21 * m1 + k22 * m2)
+    scale = max(abs(s11), abs(s12), abs(s22), abs(h1), abs(h2), 1e-300)
+    s11, s12, s22, h1, h2 = s11 / scale, s12 / scale, s22 / scale, h1 / scale, h2 / scale
+    trace = s11 + s22
+    det = s11 * s22 - s12 * s12
+    # adj(S) h, with adj(S + lambda I) = adj(S) + lambda I for a 2x2 matrix.
+    g1, g2 = s22 * h1 - s12 * h2, s11 * h2 - s12 * h1
+    # Monic quartic lambda^4 + c1 lambda^3 + c2 lambda^2 + c3 lambda + c4: its roots are
+    # the eigenvalues of the companion matrix (what numpy.roots does, minus overhead).
+    c1 = 2.0 * trace
+    c2 = trace * trace + 2.0 * det - (h1 * h1 + h2 * h2)
+    c3 = 2.0 * trace * det - 2.0 * (h1 * g1 + h2 * g2)
+    c4 = det * det - (g1 * g1 + g2 * g2)
+    roots = np.linalg.eigvals(np.array([[-c1, -c2, -c3, -c4], [1.0, 0.0, 0.0, 0.0],
+                                        [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]))
+    real = roots.real[np.abs(roots.imag) <= 1e-6 * np.maximum(1.0, np.abs(roots.real))]
+    if real.size == 0:
+        real = roots.real[[int(np.argmin(np.abs(roots.imag)))]]
+    best, best_cost = (1.0, 0.0), math.inf
+    for lam in sorted(real.tolist(), reverse=True):
+        # (S + lambda I) r = h by Cramer's rule, then projected onto the unit circle.
+        e11, e22 = s11 + lam, s22 + lam
+        det_e = e11 * e22 - s12 * s12
+        if abs(det_e) <= 1e-14 * max(1.0, abs(e11), abs(e22), abs(s12)) ** 2:
+            continue
+        c, sn = (e22 * h1 - s12 * h2) / det_e, (e11 * h2 - s12 * h1) / det_e
+        norm = math.hypot(c, sn)
+        if norm == 0.0:
+            continue
+        c, sn = c / norm, sn / norm
+        cost = s11 * c * c + 2.0 * s12 * c * sn + s22 * sn * sn - 2.0 * (h1 * c + h2 * sn)
+        if cost < best_cost:
+            best, best_cost = (c, sn), cost
+    c, sn = best
+    r1, r2 = m1 - (b11 * c + b12 * sn), m2 - (b21 * c + b22 * sn)
+    return np.array([i11 * r1 + i12 * r2, i12 * r1 + i22 * r2, math.atan2(sn, c)])

@@ -1,0 +1,270 @@
+"""Tests of the IMLS-ICP matcher: the implicit surface, selection, recovery, information."""
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.matchers import create_matcher, default_config, matcher_names
+from laser_odom.core.matchers.imls import (
+    gauss_newton_step, ImlsConfig, ImlsMatcher, point_to_plane_system)
+from laser_odom.core.matchers.imls_surface import (
+    implicit_surface, model_from_arrays, observability_scores, planarity,
+    project_onto_surface, select_informative, surface_model)
+from laser_odom.core.params import ParameterError
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.scan import scan_to_points, ScanPoints
+from laser_odom.core.simulation import geometry as geo
+from laser_odom.core.simulation import LaserModel, render_scan, World
+
+H = 0.1
+RADIUS = 0.3
+
+# An irregular room (no symmetry that would make a pose ambiguous) with a pillar and
+# a box, so every degree of freedom is constrained.
+ROOM = World(
+    'imls-room', 'irregular polygon room for the IMLS tests',
+    geo.stack(geo.polygon([[-4.0, -3.0], [5.0, -3.5], [6.0, 1.0], [3.5, 4.0], [-2.0, 3.5],
+                           [-4.5, 1.0]]),
+              geo.box(2.0, 1.5, 0.8, 0.5, 0.4), geo.pillar(-2.0, -1.0, 0.3)),
+    np.zeros((2, 2)))
+
+# A 2 m wide corridor closed at x = 7 and open (beyond range) behind the robot: only
+# the end wall tells where along the corridor the robot is.
+CORRIDOR = World(
+    'imls-corridor', 'corridor with an end wall and a corner',
+    geo.stack(geo.wall((-30.0, -1.0), (7.0, -1.0)), geo.wall((-30.0, 1.0), (4.0, 1.0)),
+              geo.wall((4.0, 1.0), (4.0, 3.0)), geo.wall((4.0, 3.0), (7.0, 3.0)),
+              geo.wall((7.0, -1.0), (7.0, 3.0))),
+    np.zeros((2, 2)))
+
+EXACT = LaserModel(beams=360, fov=2.0 * math.pi, max_range=20.0, noise_sigma=0.0)
+
+
+def _scan(world: World, pose: se2.Pose, laser: LaserModel = EXACT, seed: int = 0,
+          stamp_ns: int = 0) -> ScanPoints:
+    scan = render_scan(world, pose, laser, np.random.default_rng(seed), stamp_ns)
+    return scan_to_points(scan)
+
+
+def _line_model(spacing: float = 0.01):
+    xs = np.arange(-5.0, 5.0 + 1e-9, spacing)
+    points = np.column_stack((xs, np.zeros_like(xs)))
+    normals = np.tile([0.0, 1.0], (len(xs), 1))
+    return model_from_arrays(points, normals)
+
+
+def _circle_model(radius: float, spacing: float = 0.005):
+    count = int(round(2.0 * math.pi * radius / spacing))
+    phi = np.arange(count) * (2.0 * math.pi / count)
+    points = radius * np.column_stack((np.cos(phi), np.sin(phi)))
+    return model_from_arrays(points, -points / radius)   # normals towards the centre
+
+
+def test_surface_is_signed_distance_to_a_straight_wall():
+    model = _line_model()
+    rng = np.random.default_rng(1)
+    queries = np.column_stack((rng.uniform(-3.0, 3.0, 200), rng.uniform(-0.25, 0.25, 200)))
+    sample = implicit_surface(model, queries, H, RADIUS, 32, 3)
+    assert sample.defined.all()
+    np.testing.assert_allclose(sample.value, queries[:, 1], atol=1e-9)
+    np.testing.assert_allclose(sample.normal, np.tile([0.0, 1.0], (200, 1)))
+
+
+def test_surface_is_signed_distance_to_a_circle_up_to_the_smoothing_error():
+    # For inward normals, I(x) = (R - |x|) + h^2 / (4 R) to first order: the Gaussian
+    # weights spread over an arc of angular variance h^2 / (2 R |x|) (Kolluri 2005).
+    radius = 2.0
+    model = _circle_model(radius)
+    rng = np.random.default_rng(2)
+    rho = radius + rng.uniform(-0.15, 0.15, 300)
+    phi = rng.uniform(-math.pi, math.pi, 300)
+    queries = rho[:, None] * np.column_stack((np.cos(phi), np.sin(phi)))
+    sample = implicit_surface(model, queries, H, RADIUS, 200, 3)
+    assert sample.defined.all()
+    signed = radius - rho
+    smoothing = H * H / (4.0 * radius)
+    assert np.max(np.abs(sample.value - signed)) < 2.0 * smoothing
+    np.testing.assert_allclose(sample.value, signed + smoothing, atol=0.15 * smoothing)
+
+
+def test_surface_from_estimated_normals_of_a_scanned_wall():
+    # A wall 2 m in front of the sensor, scanned at 0.25 deg: normals come from
+    # estimate_normals and point back at the sensor, so I > 0 on the sensor's side.
+    angles = np.radians(np.arange(-40.0, 40.0, 0.25))
+    ranges = 2.0 / np.cos(angles)
+    points = np.column_stack((ranges * np.cos(angles), ranges * np.sin(angles)))
+    scan = ScanPoints(points, np.arange(len(points)), ranges)
+    model = surface_model(scan, 10, 0.3, 4)
+    queries = np.column_stack((np.linspace(1.8, 2.2, 41), np.linspace(-1.0, 1.0, 41)))
+    sample = implicit_surface(model, queries, H, RADIUS, 16, 3)
+    assert sample.defined.all()
+    np.testing.assert_allclose(sample.value, 2.0 - queries[:, 0], atol=1e-6)
+    assert surface_model(scan, 10, 0.3, 4) is model          # cached on the scan
+
+
+def test_points_with_too_few_neighbours_have_no_surface_value():
+    model = _line_model(spacing=0.2)
+    queries = np.array([[0.0, 0.05], [0.0, 1.0], [100.0, 0.0]])
+    sample = implicit_surface(model, queries, H, RADIUS, 8, 3)
+    # (0, 0.05) has 3 points within 0.3 m (x = -0.2, 0, 0.2); the others have none.
+    np.testing.assert_array_equal(sample.defined, [True, False, False])
+    np.testing.assert_array_equal(sample.count, [3, 0, 0])
+    assert sample.value[1] == 0.0 and not sample.normal[1].any()
+    assert not implicit_surface(model, queries, H, RADIUS, 8, 4).defined.any()
+
+
+def test_projection_lands_on_the_surface():
+    line = _line_model()
+    rng = np.random.default_rng(3)
+    queries = np.column_stack((rng.uniform(-3, 3, 100), rng.uniform(-0.2, 0.2, 100)))
+    sample = implicit_surface(line, queries, H, RADIUS, 32, 3)
+    projected = project_onto_surface(queries, sample.value, sample.normal)
+    np.testing.assert_allclose(projected[:, 1], 0.0, atol=1e-9)
+    np.testing.assert_allclose(projected[:, 0], queries[:, 0], atol=1e-9)
+
+    radius = 2.0
+    circle = _circle_model(radius)
+    phi = rng.uniform(-math.pi, math.pi, 100)
+    queries = (radius + rng.uniform(-0.2, 0.2, 100))[:, None] * np.column_stack(
+        (np.cos(phi), np.sin(phi)))
+    sample = implicit_surface(circle, queries, H, RADIUS, 200, 3)
+    projected = project_onto_surface(queries, sample.value, sample.normal)
+    # On the IMLS surface itself (I(y) ~ 0): the zero set of (R - |x|) + h^2 / 4R, a
+    # circle h^2 / 4R wider than the sampled one.
+    again = implicit_surface(circle, projected, H, RADIUS, 200, 3)
+    assert np.max(np.abs(again.value)) < 1e-3 * H
+    np.testing.assert_allclose(np.hypot(*projected.T), radius + H * H / (4 * radius),
+                               atol=2e-4)
+
+
+def test_planarity_is_one_on_a_line_and_zero_on_a_blob():
+    np.testing.assert_allclose(planarity(np.array([0.0, 0.5, 0.2])),
+                               [1.0, 0.0, 1.0 - math.sqrt(0.25)])
+
+
+def test_selection_keeps_every_degree_of_freedom_in_a_corridor():
+    current = _scan(CORRIDOR, se2.pose(0.0, 0.0, 0.05))
+    model = surface_model(current, 10, 0.3, 4)
+    normals, usable = model.normals[:-1], model.usable[:-1]
+    scores = observability_scores(current.points, normals, model.curvature)
+    per_list = 20
+    chosen = select_informative(scores, usable, per_list)
+    assert len(np.unique(chosen)) == len(chosen)
+    assert 3 * per_list <= len(chosen) <= 4 * per_list
+    x_facing = np.abs(normals[chosen, 0]) > 0.9
+    on_side_walls = np.abs(normals[chosen, 1]) > 0.9
+    # The end wall and the corner's short walls are a small part of the scan, yet they
+    # fill the x list: the motion along the corridor stays observable.
+    assert np.count_nonzero(x_facing) >= per_list
+    assert np.count_nonzero(np.abs(normals[usable, 0]) > 0.9) < 0.35 * np.count_nonzero(usable)
+    # Not an all-one-wall selection: both long walls contribute.
+    ys = current.points[chosen, 1]
+    assert np.count_nonzero(on_side_walls & (ys > 0.5)) >= 5
+    assert np.count_nonzero(on_side_walls & (ys < -0.5)) >= 5
+    # Both signs of rotation are represented.
+    assert np.count_nonzero(scores[chosen, 2] > 0.5) >= per_list // 2
+    assert np.count_nonzero(scores[chosen, 3] > 0.5) >= per_list // 2
+    # Per point, the selection's weakest direction is much better constrained than the
+    # whole scan's (rotation measured as the arc at 5 m).
+
+    def weakest(index):
+        jac = np.column_stack((normals[index], scores[index, 2] / 5.0))
+        return np.linalg.eigvalsh(jac.T @ jac)[0] / len(index)
+    assert weakest(chosen) > 2.0 * weakest(np.flatnonzero(usable))
+
+
+def test_gauss_newton_step_leaves_an_unconstrained_direction_alone():
+    # Residuals from one wall (normal +y) constrain y only; x and theta stay put.
+    jac = np.column_stack((np.zeros(10), np.ones(10), np.zeros(10)))
+    step = gauss_newton_step(jac, np.full(10, 0.1), np.ones(10))
+    np.testing.assert_allclose(step, [0.0, -0.1, 0.0], atol=1e-12)
+
+
+def test_point_to_plane_jacobians_match_finite_differences():
+    rng = np.random.default_rng(4)
+    points = rng.uniform(-5, 5, (30, 2))
+    angles = rng.uniform(-math.pi, math.pi, 30)
+    normals = np.column_stack((np.cos(angles), np.sin(angles)))
+    targets = rng.uniform(-5, 5, (30, 2))
+    pose = se2.pose(0.3, -0.7, 0.4)
+    residuals, jacobians = point_to_plane_system(pose, points, normals, targets)
+    moved = se2.transform_points(pose, points)
+    np.testing.assert_allclose(residuals, np.einsum('nd,nd->n', moved - targets, normals))
+    eps = 1e-6
+    for k in range(3):
+        delta = np.zeros(3)
+        delta[k] = eps
+        plus, _ = point_to_plane_system(pose + delta, points, normals, targets)
+        minus, _ = point_to_plane_system(pose - delta, points, normals, targets)
+        np.testing.assert_allclose(jacobians[:, k], (plus - minus) / (2 * eps), atol=1e-7)
+
+
+@pytest.mark.parametrize('truth, guess', [
+    (se2.pose(0.12, -0.05, 0.04), se2.pose()),
+    (se2.pose(-0.25, 0.15, -0.12), se2.pose(-0.1, 0.1, -0.05)),
+    (se2.pose(0.3, 0.2, 0.2), se2.pose(0.2, 0.1, 0.1)),
+])
+def test_exact_recovery_on_noise_free_scans(truth, guess):
+    start = se2.pose(0.3, -0.2, 0.3)
+    reference = _scan(ROOM, start)
+    current = _scan(ROOM, se2.compose(start, truth))
+    result = create_matcher('imls').match(reference, current, guess)
+    assert result.converged
+    error = se2.relative(truth, result.pose)
+    assert math.hypot(error[0], error[1]) < 2e-3
+    assert abs(error[2]) < math.radians(0.05)
+    # Only the corners, which the IMLS surface rounds off, leave residuals.
+    assert result.residual < 1e-2
+    assert result.inlier_ratio > 0.9
+
+
+def test_information_covers_all_points_and_reveals_a_corridor():
+    # Same scan twice inside a long featureless stretch: x is (nearly) unobservable.
+    long_corridor = World('imls-long', 'parallel walls',
+                          geo.stack(geo.wall((-60.0, -1.0), (60.0, -1.0)),
+                                    geo.wall((-60.0, 1.0), (60.0, 1.0))), np.zeros((2, 2)))
+    laser = LaserModel(beams=360, fov=2 * math.pi, max_range=8.0, noise_sigma=0.005)
+    reference = _scan(long_corridor, se2.pose(), laser, seed=1)
+    current = _scan(long_corridor, se2.pose(0.1, 0.0, 0.0), laser, seed=2)
+    result = create_matcher('imls').match(reference, current, se2.pose(0.1, 0.0, 0.0))
+    assert result.converged
+    assert result.correspondences > 0.8 * len(current)         # all points, not the selection
+    assert result.correspondences > result.extra['selected']
+    values, vectors = np.linalg.eigh(result.information)
+    assert abs(vectors[0, 0]) > 0.99                              # weakest direction: x
+    assert values[0] < 1e-3 * values[1]
+    np.testing.assert_allclose(result.covariance @ result.information, np.eye(3), atol=1e-6)
+    assert abs(result.pose[1]) < 5e-3 and abs(result.pose[2]) < 2e-3
+
+
+def test_registered_with_validated_parameters():
+    assert 'imls' in matcher_names()
+    assert isinstance(create_matcher('imls'), ImlsMatcher)
+    config = default_config('imls')
+    assert isinstance(config, ImlsConfig)
+    assert create_matcher('imls', {'h': 0.05, 'points_per_list': 30}).config.h == 0.05
+    with pytest.raises(ParameterError):
+        create_matcher('imls', {'h': -1.0})
+    with pytest.raises(ParameterError):
+        create_matcher('imls', {'robust_kernel': 'bogus'})
+
+
+def test_pipeline_tracks_a_noisy_drive_through_the_room():
+    laser = LaserModel(beams=360, fov=2 * math.pi, max_range=20.0, noise_sigma=0.01)
+    pipeline = OdometryPipeline(PipelineConfig(matcher='imls'))
+    rng = np.random.default_rng(5)
+    truth = [se2.pose(-1.0, -1.0, 0.0)]
+    for _ in range(40):
+        truth.append(se2.compose(truth[-1], se2.pose(0.08, 0.0, 0.03)))
+    estimate = None
+    for i, pose in enumerate(truth):
+        scan = render_scan(ROOM, pose, laser, rng, stamp_ns=(i + 1) * 100_000_000)
+        estimate = pipeline.process(scan)
+        assert estimate.status in ('initialized', 'matched')
+    expected = se2.relative(truth[0], truth[-1])
+    error = se2.relative(expected, estimate.pose)
+    assert math.hypot(error[0], error[1]) < 0.03
+    assert abs(error[2]) < math.radians(0.5)

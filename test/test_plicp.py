@@ -1,0 +1,243 @@
+"""PL-ICP: exact closed-form step, beam-order segments, exact recovery, robustness."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+import yaml
+
+from laser_odom.core import se2
+from laser_odom.core.config import pipeline_config_from_params
+from laser_odom.core.matchers import create_matcher
+from laser_odom.core.matchers.plicp import (
+    pair_with_segments, PlicpConfig, reference_segments, rotation_candidates)
+from laser_odom.core.matchers.plicp_solver import solve_point_to_line
+from laser_odom.core.params import as_dict
+from laser_odom.core.scan import scan_to_points, ScanPoints
+from laser_odom.core.simulation import geometry
+from laser_odom.core.simulation import get_world, LaserModel, render_scan, simulate, World
+
+CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'plicp.yaml'
+MOTION = se2.pose(0.3, 0.0, math.radians(10.0))
+# A typical constant-velocity prediction error: a few centimetres, a fraction of a degree.
+GUESS = se2.compose(MOTION, se2.pose(0.02, -0.01, math.radians(0.3)))
+SEMICIRCLE = LaserModel(beams=361, fov=math.pi, noise_sigma=0.01)
+"""A SICK-like 180 deg scanner, as in the benchmark logs."""
+
+
+def point_to_line_cost(pose, points, targets, normals, weights):
+    """Return the PL-ICP objective sum w (n . (R p + t - q))^2."""
+    moved = se2.transform_points(pose, points)
+    return float(np.sum(weights * np.einsum('nd,nd->n', normals, moved - targets) ** 2))
+
+
+def office_pose(when: float) -> np.ndarray:
+    return get_world('office').path.poses_at(np.array([when]))[0]
+
+
+def scan_pair(world, start, motion, laser, seed=0):
+    """Render the reference at ``start`` and the current scan at ``start * motion``."""
+    rng = np.random.default_rng(seed)
+    reference = scan_to_points(render_scan(world, start, laser, rng))
+    current = scan_to_points(render_scan(world, se2.compose(start, motion), laser, rng))
+    return reference, current
+
+
+def pose_error(estimate, truth):
+    """Return the translation [m] and rotation [deg] of ``truth^-1 estimate``."""
+    error = se2.relative(truth, estimate)
+    return math.hypot(error[0], error[1]), abs(math.degrees(error[2]))
+
+
+@pytest.mark.parametrize('seed', range(12))
+def test_closed_form_step_is_the_global_minimum(seed):
+    """Random pairs, random weights: no local search finds a lower point-to-line cost."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(4, 40))
+    points, targets = rng.normal(0.0, 3.0, (n, 2)), rng.normal(0.0, 3.0, (n, 2))
+    angles = rng.uniform(-math.pi, math.pi, n)
+    normals = np.column_stack((np.cos(angles), np.sin(angles)))
+    weights = rng.uniform(0.1, 1.0, n)
+    args = (points, targets, normals, weights)
+    exact = solve_point_to_line(points, targets, normals, weights)
+    best = min((minimize(point_to_line_cost, [0.0, 0.0, start], args=args, method='BFGS',
+                         options={'gtol': 1e-12}) for start in np.linspace(-3.1, 3.1, 24)),
+               key=lambda r: r.fun)
+    exact_cost = point_to_line_cost(exact, *args)
+    assert exact_cost <= best.fun + 1e-9 * (1.0 + best.fun)
+    # The minimiser is unique here, so the poses agree too.
+    assert pose_error(exact, best.x)[0] < 1e-4 and pose_error(exact, best.x)[1] < 1e-3
+
+
+def test_closed_form_step_is_exact_for_any_rotation():
+    rng = np.random.default_rng(7)
+    points = rng.normal(0.0, 4.0, (50, 2))
+    angles = rng.uniform(-math.pi, math.pi, 50)
+    normals = np.column_stack((np.cos(angles), np.sin(angles)))
+    for truth in (se2.pose(0.4, -1.2, 2.9), se2.pose(-3.0, 0.5, -1.7), se2.pose(0, 0, 0)):
+        # Targets anywhere on the lines through the true images of the points.
+        along = np.column_stack((-normals[:, 1], normals[:, 0])) * rng.normal(0, 1, (50, 1))
+        targets = se2.transform_points(truth, points) + along
+        got = solve_point_to_line(points, targets, normals)
+        assert pose_error(got, truth)[0] < 1e-8 and pose_error(got, truth)[1] < 1e-7
+
+
+def test_closed_form_step_leaves_an_unconstrained_direction_alone():
+    """Only parallel lines (a corridor): no translation along them, no blow-up."""
+    points = np.column_stack((np.linspace(-5, 5, 40), np.tile([-1.0, 1.0], 20)))
+    normals = np.tile([0.0, 1.0], (40, 1))
+    truth = se2.pose(0.7, 0.05, 0.02)
+    got = solve_point_to_line(points, se2.transform_points(truth, points), normals)
+    assert np.all(np.isfinite(got))
+    assert abs(got[0]) < 1e-6  # along the corridor: unobservable, stays put
+    assert abs(got[1] - truth[1]) < 1e-9 and abs(got[2] - truth[2]) < 1e-9
+
+
+def test_segments_stop_at_range_discontinuities_and_beam_gaps():
+    # Beams 0-3 on a wall 2 m away, beam 4 jumps to 5 m (discontinuity), then beams
+    # 9-10 after a gap of dropped readings (beam gap 5 > max_beam_gap 3).
+    beams = np.array([0, 1, 2, 3, 4, 9, 10])
+    points = np.array([[2.0, 0.0], [2.0, 0.1], [2.0, 0.2], [2.0, 0.3], [5.0, 1.0],
+                       [5.0, 2.0], [5.0, 2.05]])
+    scan = ScanPoints(points, beams, np.hypot(points[:, 0], points[:, 1]))
+    segments = reference_segments(scan, max_beam_gap=3, max_segment_length=0.5)
+    assert segments.segment_ok.tolist() == [True, True, True, False, False, True]
+    usable = segments.table[:-1, -1].astype(bool)
+    assert usable.tolist() == [True, True, True, True, False, True, True]
+    assert segments.table[-1, -1] == 0.0  # the "no neighbour found" row
+    assert reference_segments(scan, 3, 0.5) is segments  # cached per scan
+
+
+def test_pairs_take_the_closer_beam_neighbour_and_its_line():
+    points = np.array([[2.0, -0.2], [2.0, 0.0], [2.1, 0.1], [2.2, 0.2]])
+    scan = ScanPoints(points, np.arange(4), np.hypot(points[:, 0], points[:, 1]))
+    segments = reference_segments(scan, 3, 0.5)
+    # Nearest reference point is #1 for both; the first is nearer #0, the second #2.
+    queries = np.array([[1.9, -0.03], [2.05, 0.03]])
+    index, segment_id, line = pair_with_segments(segments, scan.tree, queries, 0.5)
+    assert index.tolist() == [0, 1]
+    assert segment_id.tolist() == [2, 3]  # 2 * j1 + (1 if the next neighbour)
+    assert np.allclose(np.abs(line[0, :2]), [1.0, 0.0])  # the wall x = 2
+    assert np.allclose(np.abs(line[1, :2]), [math.sqrt(0.5)] * 2)  # the 45 deg facet
+    residual = line[:, 0] * queries[:, 0] + line[:, 1] * queries[:, 1] - line[:, 2]
+    assert np.allclose(np.abs(residual), [0.1, abs(0.05 - 0.03) * math.sqrt(0.5)])
+
+
+@pytest.mark.parametrize('when', [3.0, 20.0, 45.0])
+def test_exact_recovery_on_noise_free_rerendered_scans(when):
+    """The current scan is a real re-render at the moved pose: other beams, same walls."""
+    laser = LaserModel(noise_sigma=0.0)
+    reference, current = scan_pair('office', office_pose(when), MOTION, laser)
+    result = create_matcher('plicp').match(reference, current, GUESS)
+    assert result.converged
+    assert pose_error(result.pose, MOTION)[0] < 1e-6
+    assert pose_error(result.pose, MOTION)[1] < math.degrees(1e-6)
+
+
+def test_fewer_iterations_than_icp_and_at_least_as_accurate():
+    """Consecutive scans of a simulated structured run (walls, corners, 1 cm noise)."""
+    dataset = simulate('office', duration=20.0, laser=SEMICIRCLE, seed=3)
+    truth = dataset.reference.poses
+    rng = np.random.default_rng(5)
+    stats = {'plicp': [], 'icp': []}
+    for i in range(0, len(truth) - 1, 10):
+        reference = scan_to_points(dataset.scans[i])
+        current = scan_to_points(dataset.scans[i + 1])
+        motion = se2.relative(truth[i], truth[i + 1])
+        guess = se2.compose(motion, np.append(rng.normal(0.0, 0.02, 2),
+                                              rng.normal(0.0, 0.005)))
+        for name in stats:
+            # Same convergence test for both: steps below 0.1 mm and 0.1 mrad.
+            matcher = create_matcher(name, {'convergence_translation': 1e-4,
+                                            'convergence_rotation': 1e-4})
+            result = matcher.match(reference, current, guess)
+            stats[name].append((result.iterations, *pose_error(result.pose, motion)))
+    plicp, icp = np.array(stats['plicp']), np.array(stats['icp'])
+    assert plicp[:, 0].mean() < 0.5 * icp[:, 0].mean()
+    assert plicp[:, 1].mean() <= icp[:, 1].mean()
+    assert plicp[:, 2].mean() <= icp[:, 2].mean()
+    assert plicp[:, 1].max() < 0.01 and plicp[:, 2].max() < 0.2
+
+
+def person_world(start: np.ndarray, offset: tuple[float, float]) -> World:
+    """Return the office with a 0.5 m wide person ahead-left of ``start``, moved by offset."""
+    office = get_world('office')
+    centre = se2.transform_points(start, np.array([[1.2 + offset[0], 0.6 + offset[1]]]))[0]
+    person = geometry.pillar(centre[0], centre[1], 0.25, sides=12)
+    return World('office+person', 'office with a walking person',
+                 np.vstack((office.segments, person)), office.waypoints)
+
+
+def test_trimming_rejects_a_moving_person():
+    start = office_pose(3.0)
+    motion = se2.pose(0.2, 0.0, math.radians(5.0))
+    guess = se2.compose(motion, se2.pose(0.02, -0.01, math.radians(0.3)))
+    laser = LaserModel(noise_sigma=0.0)
+    reference = scan_to_points(render_scan(person_world(start, (0.0, 0.0)), start, laser))
+    # The person steps 14 cm: close enough that distance gating alone keeps the pairs.
+    current = scan_to_points(render_scan(person_world(start, (0.1, 0.1)),
+                                         se2.compose(start, motion), laser))
+    trimmed = create_matcher('plicp').match(reference, current, guess)
+    untrimmed = create_matcher('plicp', {'min_keep_fraction': 1.0, 'max_keep_fraction': 1.0,
+                                         'coarse_keep_fraction': 1.0}).match(
+        reference, current, guess)
+    assert pose_error(trimmed.pose, motion)[0] < 1e-4
+    assert pose_error(trimmed.pose, motion)[1] < 1e-3
+    # Without trimming the person's points pull the estimate by a centimetre.
+    assert pose_error(untrimmed.pose, motion)[0] > 5e-3
+
+
+@pytest.mark.parametrize('degrees', [30.0, -35.0, 40.0])
+def test_restart_recovers_a_large_rotation_error(degrees):
+    """A 180 deg scan, the guess 30-40 deg off: the first run fails, a restart does not."""
+    reference, current = scan_pair('office', office_pose(10.0), MOTION, SEMICIRCLE)
+    guess = MOTION + np.array([0.05, 0.0, math.radians(degrees)])
+    plain = create_matcher('plicp', {'restart_residual': 0.0}).match(reference, current, guess)
+    restarted = create_matcher('plicp').match(reference, current, guess)
+    assert pose_error(plain.pose, MOTION)[1] > 10.0
+    assert pose_error(restarted.pose, MOTION)[0] < 0.01
+    assert pose_error(restarted.pose, MOTION)[1] < 0.1
+
+
+def test_rotation_candidates_find_the_wall_directions():
+    reference, current = scan_pair('office', office_pose(10.0), MOTION, SEMICIRCLE)
+    candidates = rotation_candidates(reference, current, MOTION[2] + 0.4, 0.6, 3)
+    assert min(abs(c - MOTION[2]) for c in candidates) < math.radians(1.5)
+
+
+def test_information_is_weak_along_a_featureless_corridor():
+    world = get_world('featureless_corridor')
+    start = world.path.poses_at(np.array([5.0]))[0]
+    step = se2.pose(0.05, 0.0, 0.0)
+    reference, current = scan_pair(world, start, step, LaserModel(noise_sigma=0.005), 4)
+    result = create_matcher('plicp').match(reference, current, step)
+    # Information of the position in the world frame: the corridor runs along x.
+    rot = se2.rotation(start[2])
+    info = rot @ result.information[:2, :2] @ rot.T
+    assert info[1, 1] > 1e4 * info[0, 0]
+    assert result.information[2, 2] > 1e4  # the heading is well constrained
+
+
+def test_too_few_points_fails_cleanly():
+    few = ScanPoints(np.zeros((3, 2)), np.arange(3), np.ones(3))
+    result = create_matcher('plicp').match(few, few, se2.pose(0.1, 0.0, 0.0))
+    assert not result.converged
+    assert np.allclose(result.pose, [0.1, 0.0, 0.0])
+
+
+def test_config_file_restates_the_tuned_defaults():
+    document = yaml.safe_load(CONFIG.read_text())
+    (node, body), = document.items()
+    params = body['ros__parameters']
+    assert params['matcher'] == 'plicp'
+    assert params['plicp'] == as_dict(PlicpConfig())
+    flat = {'matcher': 'plicp', **{f'plicp.{k}': v for k, v in params['plicp'].items()}}
+    assert pipeline_config_from_params(flat).matcher_config == PlicpConfig()
+    text = CONFIG.read_text()
+    for name in params['plicp']:
+        # Every value is explained by a comment line right above it.
+        lines = text.splitlines()
+        at = next(i for i, line in enumerate(lines) if line.strip().startswith(name + ':'))
+        assert lines[at - 1].strip().startswith('#'), name
