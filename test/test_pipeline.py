@@ -116,3 +116,19 @@ def test_rejected_match_advances_by_the_prediction(office_run):
     assert estimate.status == 'rejected'
     assert np.allclose(estimate.pose, [0.05, 0.0, 0.0])
     assert estimate.pose_covariance[0, 0] >= 0.25
+
+
+def test_jittery_logger_stamps_use_the_mean_scan_interval():
+    from laser_odom.core.config import MotionConfig
+    from laser_odom.core.motion import MotionModel
+    model = MotionModel(MotionConfig())
+    bursty = [0.01, 0.39] * 10  # a 5 Hz sensor logged in pairs
+    for dt in bursty:
+        model.update(np.array([0.1, 0.0, 0.05]), dt)
+    assert abs(model.effective_dt(0.01) - 0.2) < 1e-9
+    assert np.allclose(model.predict(0.39), [0.1, 0.0, 0.05])
+    regular = MotionModel(MotionConfig())
+    for dt in [0.1] * 10 + [0.2]:  # true stamps with one dropped scan
+        regular.update(np.array([0.05, 0.0, 0.0]), dt)
+    assert regular.effective_dt(0.2) == 0.2
+    assert regular.effective_dt(0.001) == 0.1  # a lone glitch is one period

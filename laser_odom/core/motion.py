@@ -8,7 +8,7 @@ inside their basin of convergence.
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 
 import numpy as np
 
@@ -20,6 +20,13 @@ MIN_VELOCITY_DT = 0.005
 """Shortest scan interval [s] from which a velocity is estimated."""
 
 
+PERIOD_WINDOW = 25
+"""Recent scan intervals from which the nominal sensor period is taken."""
+
+JITTER_FRACTION = 0.1
+"""Share of implausibly short intervals above which scan stamps count as jittery."""
+
+
 class MotionModel:
     """Predicts the motion between scans from the last velocity or an external prior."""
 
@@ -27,10 +34,35 @@ class MotionModel:
         """Create the model; it starts at rest."""
         self.config = config
         self.reset()
+        self.forget_intervals()
 
     def reset(self) -> None:
         """Forget the velocity (the robot is assumed at rest)."""
         self.velocity = np.zeros(3)
+
+    def forget_intervals(self) -> None:
+        """Forget the sensor period too (a new sensor or a restarted clock)."""
+        self.intervals: deque[float] = deque(maxlen=PERIOD_WINDOW)
+
+    def effective_dt(self, dt: float) -> float:
+        """Return the interval the motion is scaled by.
+
+        A sensor's true stamps give intervals of one period, or a few when scans are
+        dropped - never much less than one. Logger-stamped logs (the Intel lab log) are
+        bursty instead: a scan stamped 10 ms after its predecessor by a 5 Hz sensor was
+        taken a whole period later, and the next one looks 0.39 s late. When more than
+        ``JITTER_FRACTION`` of the recent intervals are shorter than half their median,
+        the single interval says nothing and the mean interval (the true scan rate)
+        is used; a lone short interval in a regular stream is taken as the median.
+        """
+        if len(self.intervals) < 5:
+            return dt
+        window = np.asarray(self.intervals)
+        median = float(np.median(window))
+        short = window < 0.5 * median
+        if np.mean(short) > JITTER_FRACTION:
+            return float(np.mean(window))
+        return median if dt < 0.5 * median else dt
 
     def predict(self, dt: float, prior_step: se2.Pose | None = None,
                 prior_yaw: float | None = None,
@@ -43,7 +75,7 @@ class MotionModel:
             if counters is not None:
                 counters['scan_gap'] += 1
             return se2.pose()
-        constant_velocity = self.velocity * dt
+        constant_velocity = self.velocity * self.effective_dt(dt)
         if cfg.prior == 'odom':
             if prior_step is not None and se2.is_finite_pose(prior_step):
                 return np.array(prior_step, dtype=float)
@@ -60,12 +92,15 @@ class MotionModel:
         """Record the estimated motion of the last step.
 
         A step over a gap longer than ``max_scan_gap`` (or a non-finite one) leaves the
-        robot assumed at rest. A step over less than ``MIN_VELOCITY_DT`` (scans whose
-        stamps nearly coincide, as in re-stamped logs) says nothing reliable about
-        speed - millimetres of noise over a microsecond would be km/s - so the previous
-        velocity is kept.
+        robot assumed at rest. The step is turned into a velocity over the
+        :meth:`effective_dt`, so near-coincident stamps (millimetres of motion over a
+        microsecond would be km/s) do not make the next prediction run away.
         """
+        if dt > 0.0:
+            self.intervals.append(dt)
         if not (0.0 < dt <= self.config.max_scan_gap and se2.is_finite_pose(step)):
             self.velocity = np.zeros(3)
-        elif dt >= MIN_VELOCITY_DT:
-            self.velocity = np.array(step, dtype=float) / dt
+            return
+        effective = self.effective_dt(dt)
+        if effective >= MIN_VELOCITY_DT:
+            self.velocity = np.array(step, dtype=float) / effective

@@ -181,10 +181,15 @@ class OdometryPipeline:
             self.motion.reset()
         else:
             self.motion.update(step, dt)
-        if verdict.status != 'rejected' and self._keyframe_expired(verdict.pose):
+        if verdict.status == 'rejected' or self._keyframe_expired(verdict.pose):
+            # After a rejection the current scan becomes the reference at the predicted
+            # pose: a bad prediction then costs one step, instead of misleading every
+            # following match against the old reference.
             self._set_keyframe(current)
-        twist = step / dt if dt > 0 else np.zeros(3)
-        twist_cov = step_covariance / (dt * dt) if dt > 0 else step_covariance * 1e6
+        rate_dt = self.motion.effective_dt(dt)
+        twist = step / rate_dt if rate_dt > 0 else np.zeros(3)
+        twist_cov = (step_covariance / (rate_dt * rate_dt) if rate_dt > 0
+                     else step_covariance * 1e6)
         return OdometryEstimate(stamp_ns, new_pose, self.pose_covariance.copy(), twist,
                                 twist_cov, verdict.status, match)
 
