@@ -8,14 +8,21 @@ import pytest
 import yaml
 
 from laser_odom.core import se2
-from laser_odom.core.config import pipeline_config_from_params
+from laser_odom.core.config import pipeline_config_from_params, PipelineConfig
+from laser_odom.core.datasets import load_dataset
+from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
 from laser_odom.core.matchers.nicp import _undoes, NicpConfig, NicpMatcher
 from laser_odom.core.matchers.nicp_model import (
-    associate, chi_squared, dense_information, nicp_surface, normal_equations,
-    normal_variance, pair_rules, point_information, residuals_and_jacobians, rotation_seed)
+    associate, chi_squared, dense_information, normal_equations, pair_rules,
+    residuals_and_jacobians)
+from laser_odom.core.matchers.nicp_surface import (
+    nicp_surface, normal_variance, point_information, rotation_seed)
+from laser_odom.core.metrics import evaluate
 from laser_odom.core.normals import estimate_normals, normals_from_neighbours
 from laser_odom.core.params import as_dict, ParameterError
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import scan_to_points, ScanPoints
 from laser_odom.core.simulation import geometry as geo
 from laser_odom.core.simulation import LaserModel, render_scan, World
@@ -420,3 +427,22 @@ def test_yaml_restates_the_tuned_defaults():
     flat = {'matcher': 'nicp', **{f'nicp.{k}': v for k, v in params['nicp'].items()}}
     config = pipeline_config_from_params(flat)
     assert config.matcher == 'nicp' and config.matcher_config == NicpConfig()
+
+
+# --- real data (skipped without ../shared/data) ----------------------------------------
+
+@pytest.mark.parametrize('path, scans, bounds', [
+    # (mean RPE [m], mean RPE [deg], ATE [m]) on the first scans, constant velocity
+    ('mit-csail/mit-csail.clf', 500, (0.025, 0.45, 0.2)),
+    ('fr079/freiburg-079-corrected.log.gz', 600, (0.025, 0.3, 0.2)),
+])
+def test_real_logs_are_tracked(shared_data_dir, path, scans, bounds):
+    dataset = load_dataset(shared_data_dir / path)
+    pipeline = OdometryPipeline(PipelineConfig(matcher='nicp'),
+                                events=EventLog(lambda message: None))
+    errors = evaluate(run_pipeline(pipeline, dataset.scans[:scans]).trajectory,
+                      dataset.reference)
+    assert errors.steps > 100 and errors.failed_steps == 0
+    assert errors.rpe_trans_mean < bounds[0]
+    assert errors.rpe_rot_mean < bounds[1]
+    assert errors.ate_rms < bounds[2]

@@ -27,7 +27,8 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.imls_surface import (
-    implicit_surface, observability_scores, project_onto_surface, select_informative,
+    implicit_surface, observability_scores, planarity, project_onto_surface,
+    select_informative,
     surface_model, SurfaceModel, SurfaceSample)
 from laser_odom.core.matchers.information import (
     covariance_from_information, information_from_jacobians, point_to_line_jacobians,
@@ -99,6 +100,7 @@ class ImlsConfig(MatcherConfig):
         10, 'Neighbours used to estimate a point normal.', 3, 100)
     normal_radius: float = param(
         0.6, 'Neighbourhood radius [m] of a point normal.', 0.01, 10.0)
+    normal_extent: float = param(0.0, 'x', 0.0, 10.0)
     normal_min_neighbours: int = param(
         4, 'Points with fewer neighbours than this have no normal.', 2, 100)
     max_correspondence_distance: float = param(
@@ -118,6 +120,7 @@ class ImlsConfig(MatcherConfig):
         20, 'Neighbours of the smoother normals used for the information matrix (0: the '
         'matching normals). Noise in a normal adds n_x^2 ~ sigma^2 of spurious information '
         'along every wall, which would hide a corridor.', 0, 100)
+    planarity_power: float = param(0.0, 'x', 0.0, 10.0)
     search_angle: float = param(
         0.35, 'When the guess overlaps the reference poorly, headings up to this far '
         '[rad] from it are tried first (0 = off).', 0.0, 3.2)
@@ -167,7 +170,8 @@ class ImlsMatcher(ScanMatcher):
         """Return the cached surface model of a scan under this configuration."""
         cfg = self.config
         return surface_model(scan, cfg.normal_neighbours, cfg.normal_radius,
-                             cfg.normal_min_neighbours)
+                             cfg.normal_min_neighbours,
+                             cfg.normal_extent if cfg.normal_extent > 0.0 else None)
 
     def _surface(self, model: SurfaceModel, queries: np.ndarray,
                  radius: float | None = None) -> SurfaceSample:
@@ -279,6 +283,9 @@ class ImlsMatcher(ScanMatcher):
                                                          targets)
             weights = np.ones_like(residuals) if approach else robust_weights(
                 residuals, cfg.robust_kernel, cfg.robust_scale)
+            if cfg.planarity_power > 0.0:
+                weights = weights * planarity(
+                    ref_model.curvature_padded[sample.nearest[ok]]) ** cfg.planarity_power
             step = gauss_newton_step(jacobians, residuals, weights)
             cosine = _cosine(step, previous_step)
             if approach:

@@ -51,6 +51,7 @@ class SurfaceModel:
         self.offset = np.einsum('nd,nd->n', self.points, self.normals)
         self.normal_x = np.ascontiguousarray(self.normals[:, 0])
         self.normal_y = np.ascontiguousarray(self.normals[:, 1])
+        self.curvature_padded = np.append(self.curvature, 0.5)
 
 
 @dataclass
@@ -74,18 +75,20 @@ class SurfaceSample:
 
 
 def surface_model(scan: ScanPoints, normal_neighbours: int, normal_radius: float,
-                  normal_min_neighbours: int) -> SurfaceModel:
+                  normal_min_neighbours: int, normal_extent: float | None = None
+                  ) -> SurfaceModel:
     """Return the (cached) IMLS model of a scan: padded points, normals, usability.
 
     Normals come from the shared :func:`estimate_normals`, whose result is cached on
     the scan, so a scan's normals are computed once: when it is the current scan
     (for point selection) and reused when it becomes the reference.
     """
-    key = ('imls_model', normal_neighbours, normal_radius, normal_min_neighbours)
+    key = ('imls_model', normal_neighbours, normal_radius, normal_min_neighbours, normal_extent)
     cached = scan.cache.get(key)
     if cached is not None:
         return cached
-    surface = estimate_normals(scan, normal_neighbours, normal_radius, normal_min_neighbours)
+    surface = estimate_normals(scan, normal_neighbours, normal_radius, normal_min_neighbours,
+                               extent=normal_extent)
     pad = np.zeros((1, 2))
     model = SurfaceModel(
         tree=scan.tree,

@@ -6,9 +6,12 @@ point, drops pairs that fail the NICP rules (undefined normal, distance, normal 
 curvature ratio), and takes one damped Gauss-Newton (Levenberg-Marquardt) step on the
 4-vector point-and-normal error weighted by the reference point's information and a
 robust kernel (IRLS). The error model is in :mod:`laser_odom.core.matchers.nicp_model`.
-The information of the result is ``sum w J^T Omega J`` at the solution; when it is
-ill conditioned (a featureless corridor) the result is flagged degenerate, with the
-same eigenvalue-ratio test the pipeline's acceptance applies.
+The information of the result is ``sum w J^T Omega J`` at the solution (with the point
+information debiased for the noise of the normals and scaled by the a-posteriori
+variance factor); when a direction of it is too weak (a featureless corridor's axis)
+the result is flagged degenerate, with the test the pipeline's acceptance applies.
+A match whose guess was poor is restarted from the rotation that aligns the normal
+orientation histograms of the two scans.
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.information import covariance_from_information
 from laser_odom.core.matchers.nicp_model import (
-    associate, chi_squared, is_degenerate, nicp_surface, NicpSurface, normal_equations,
-    rotation_seed, SurfaceSettings)
+    associate, chi_squared, is_degenerate, normal_equations)
+from laser_odom.core.matchers.nicp_surface import (
+    nicp_surface, NicpSurface, rotation_seed, SurfaceSettings)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import KERNELS, robust_weights
 from laser_odom.core.params import param
@@ -80,7 +84,7 @@ class NicpConfig(MatcherConfig):
         100.0, 'Information [1/rad^2] of the normal error on flat surfaces (1 elsewhere).',
         0.0, 1e6)
     max_normal_angle: float = param(
-        0.5, 'Pairs whose normals differ by more than this [rad] are rejected.', 0.0,
+        0.3, 'Pairs whose normals differ by more than this [rad] are rejected.', 0.0,
         math.pi)
     max_curvature_ratio: float = param(
         1.5, 'Pairs with |log(curvature ratio)| above this are rejected.', 0.0, 100.0)
@@ -151,12 +155,16 @@ class Linearisation:
         """Return ``sum w J^T Omega J`` with the debiased point information, scaled.
 
         Divided by the variance factor (floored at 1: residuals larger than the
-        assumed noise lower the confidence, smaller ones never raise it).
+        assumed noise lower the confidence, smaller ones never raise it). Debiased
+        rows may be indefinite; a direction whose sum came out negative holds no
+        information, so the result is projected onto the positive semi-definite cone.
         """
         rotated, rotated_normals, point_error, normal_error, ref_index, weights = self.terms
         hessian, _ = normal_equations(rotated, rotated_normals, point_error, normal_error,
                                       surface.info_report[ref_index],
                                       surface.info_normal[ref_index], weights)
+        values, vectors = np.linalg.eigh(0.5 * (hessian + hessian.T))
+        hessian = (vectors * np.maximum(values, 0.0)) @ vectors.T
         return hessian / max(self.variance_factor, 1.0)
 
 
