@@ -11,11 +11,24 @@ III, brought to 2D scan-to-scan odometry:
 3. Each iteration moves the selected points by the estimate, projects them onto the
    surface, ``y_j = x_j - I(x_j) n_j`` with ``n_j`` the normal of the nearest
    reference point (section III-C), and takes one Gauss-Newton step on the
-   point-to-plane cost ``sum_j w_j (n_j . (R x_j + t - y_j))^2`` (eq. 2).
+   point-to-plane cost ``sum_j w_j (n_j . (R x_j + t - y_j))^2`` (eq. 2), ``w_j`` the
+   squared planarity of the reference point.
 4. The information matrix is the point-to-plane Hessian over *all* current points
-   that have a surface value at the final estimate, not only the selected ones: the
-   selection deliberately balances the directions, so its Hessian would hide the
-   very degeneracy (a corridor) that the pipeline reads from the eigenvalues.
+   that have a surface value at the final estimate (outliers trimmed), not only the
+   selected ones: the selection deliberately balances the directions, so its Hessian
+   would hide the very degeneracy (a corridor) that the pipeline reads from the
+   eigenvalues. Its normals come from wider neighbourhoods (``information_neighbours``)
+   so that normal noise does not pose as information along a wall.
+
+What the paper leaves to the application (it matches to a model of many scans after
+a good motion prior) is handled for scan-to-scan odometry with a constant-velocity
+guess: when the guess overlaps the reference poorly, a heading search re-seeds it
+(the guess misses most when the robot starts or stops turning); the iterations then
+run in two stages, an *approach* (capture radius ``max_correspondence_distance`` if
+the guess is off, aligned steps extrapolated as in Besl & McKay's accelerated ICP)
+and a *refinement* at the fine ``radius`` on an inlier set fixed once (adaptive
+trimming), with steps halved whenever they reverse, since the nearest-point normal
+jumps as the nearest point changes and plain steps can cycle.
 """
 
 from __future__ import annotations
@@ -28,8 +41,7 @@ from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.imls_surface import (
     implicit_surface, observability_scores, planarity, project_onto_surface,
-    select_informative,
-    surface_model, SurfaceModel, SurfaceSample)
+    select_informative, surface_model, SurfaceModel, SurfaceSample)
 from laser_odom.core.matchers.information import (
     covariance_from_information, information_from_jacobians, point_to_line_jacobians,
     residual_variance)
@@ -43,6 +55,8 @@ from laser_odom.core.scan import ScanPoints
 EIGEN_FLOOR = 1e-9
 """Relative eigenvalue below which a Gauss-Newton direction is left unchanged."""
 
+INFORMATION_MIN_NEIGHBOURS = 4
+"""Points whose smoother normal rests on fewer neighbours add no information."""
 
 COARSE_FRACTION = 0.25
 """The approach uses the capture radius when the median surface distance at the guess
@@ -85,27 +99,45 @@ class ImlsConfig(MatcherConfig):
         'that the normalised estimation error squared on simulated runs is about 3).',
         0.01, 1000.0)
     h: float = param(
-        0.1, 'IMLS kernel width h [m]: W_i(x) = exp(-|x - p_i|^2 / h^2).', 0.001, 5.0)
+        0.05, 'IMLS kernel width h [m]: W_i(x) = exp(-|x - p_i|^2 / h^2). Smaller keeps '
+        'corners sharp (on a curve of radius R the surface is off by about h^2 / 4R).',
+        0.001, 5.0)
     radius: float = param(
-        0.3, 'Neighbourhood radius [m] of the IMLS sums (a few h); it is also the '
-        'capture range of a point.', 0.01, 10.0)
+        0.3, 'Neighbourhood radius [m] of the IMLS sums; a point with no reference point '
+        'this close has no surface value (clutter off the walls drops out).', 0.01, 10.0)
     max_neighbours: int = param(
         8, 'At most this many nearest reference points enter the IMLS sums.', 1, 100)
     min_neighbours: int = param(
         2, 'A point with fewer reference points within the radius has no surface '
         'value and is skipped.', 1, 100)
     points_per_list: int = param(
-        60, 'Informative points kept per observability list (x, y, +rot, -rot).', 1, 100000)
+        80, 'Informative points kept per observability list (x, y, +rotation, '
+        '-rotation; IMLS-SLAM section III-B).', 1, 100000)
+    planarity_power: float = param(
+        2.0, 'Each residual is weighted by the planarity of its reference point to this '
+        'power (0 = off): tangent lines at corners and on clutter are poorly defined.',
+        0.0, 10.0)
     normal_neighbours: int = param(
-        10, 'Neighbours used to estimate a point normal.', 3, 100)
+        12, 'Neighbours (k nearest, the point included) of a normal estimate.', 3, 100)
     normal_radius: float = param(
-        0.6, 'Neighbourhood radius [m] of a point normal.', 0.01, 10.0)
-    normal_extent: float = param(0.0, 'x', 0.0, 10.0)
+        0.6, 'Neighbourhood radius [m] of a normal estimate.', 0.01, 10.0)
     normal_min_neighbours: int = param(
-        4, 'Points with fewer neighbours than this have no normal.', 2, 100)
+        2, 'Points with fewer neighbours within the radius have no normal; these nearest '
+        'ones always count...', 2, 100)
+    normal_extent: float = param(
+        0.2, '...further ones only within this distance [m] (0 = off): on dense scans a '
+        'fixed stretch of surface, on sparse ones the nearest few, not a span across '
+        'corners.', 0.0, 10.0)
+    information_neighbours: int = param(
+        20, 'Neighbours of the smoother normals used for the information matrix (0: the '
+        'matching normals). Noise in a normal adds n_x^2 ~ sigma^2 of spurious information '
+        'along every wall, which would hide a corridor.', 0, 100)
     max_correspondence_distance: float = param(
         0.5, 'Capture radius [m]: after a poor guess the IMLS sums first reach this far '
         '(if beyond the radius), so points still find the surface.', 0.01, 10.0)
+    search_angle: float = param(
+        0.35, 'When the guess overlaps the reference poorly, headings up to this far '
+        '[rad] from it are tried first (0 = off).', 0.0, 3.2)
     coarse_tolerance: float = param(
         0.01, 'The approach stage ends when a step moves less than this [m] and turns '
         'less than this [rad]; the inliers are then fixed and the estimate refined.',
@@ -115,17 +147,13 @@ class ImlsConfig(MatcherConfig):
         'deviations (1.4826 MAD) are outliers...', 0.5, 100.0)
     min_keep_fraction: float = param(
         0.6, '...but at least this fraction of the points is kept.', 0.05, 1.0)
-    projection_normal: str = param('nearest', 'x', choices=('nearest', 'mean'))
-    information_neighbours: int = param(
-        20, 'Neighbours of the smoother normals used for the information matrix (0: the '
-        'matching normals). Noise in a normal adds n_x^2 ~ sigma^2 of spurious information '
-        'along every wall, which would hide a corridor.', 0, 100)
-    planarity_power: float = param(0.0, 'x', 0.0, 10.0)
-    search_angle: float = param(
-        0.35, 'When the guess overlaps the reference poorly, headings up to this far '
-        '[rad] from it are tried first (0 = off).', 0.0, 3.2)
+    projection_normal: str = param(
+        'nearest', 'Normal of the projection y = x - I(x) n: nearest (that of the '
+        'nearest reference point, as in IMLS-SLAM) or mean (kernel-weighted mean of the '
+        'normals of the neighbours, ~ grad I).', choices=('nearest', 'mean'))
     robust_kernel: str = param(
-        'none', 'Robust kernel on the point-to-plane residuals.', choices=KERNELS)
+        'none', 'Robust kernel on the point-to-plane residuals of the refinement.',
+        choices=KERNELS)
     robust_scale: float = param(
         0.05, 'Scale [m] of the robust kernel.', 1e-4, 10.0)
 
@@ -147,7 +175,9 @@ def gauss_newton_step(jacobians: np.ndarray, residuals: np.ndarray,
     """Return ``-H^+ J^T W r`` with ``H = J^T W J``; unconstrained directions stay put.
 
     The pseudo-inverse drops eigen-directions weaker than ``EIGEN_FLOOR`` times the
-    strongest, so a corridor's free axis keeps the prediction instead of drifting.
+    strongest, so a direction the points do not constrain at all (points on one wall
+    only) keeps its value instead of taking a step from round-off. Weak but real
+    constraints are kept; the pipeline judges degeneracy from the information.
     """
     weighted = jacobians * weights[:, None]
     hessian = weighted.T @ jacobians
@@ -238,18 +268,30 @@ class ImlsMatcher(ScanMatcher):
         if cfg.search_angle > 0.0:
             estimate = self._rotation_search(reference, points, estimate)
         sample = self._surface(ref_model, se2.transform_points(estimate, points), capture)
-        scores = observability_scores(points, cur_model.normals[:-1], cur_model.curvature)
+        scores = observability_scores(points, cur_model.normals[:-1],
+                                      cur_model.curvature[:-1])
         selected = select_informative(scores, cur_model.usable[:-1] & sample.defined,
                                       cfg.points_per_list)
         if len(selected) < cfg.min_correspondences:
             return MatchResult.failure(estimate, 0, len(selected),
                                        'too few points on the surface')
-        chosen = points[selected]
-        sample = _subset(sample, selected)
-        # Two stages: the approach, until a step moves less than coarse_tolerance, then
-        # the refinement on a fixed inlier set. The approach reaches out to the capture
-        # radius only when the guess is off; after a good guess it keeps to the fine
-        # radius, where clutter a little off the walls has no surface value.
+        estimate, converged, iterations = self._refine(
+            ref_model, points[selected], _subset(sample, selected), estimate, capture)
+        return self._result(reference, current, estimate, converged, iterations,
+                            len(selected))
+
+    def _refine(self, ref_model: SurfaceModel, chosen: np.ndarray, sample: SurfaceSample,
+                estimate: se2.Pose, capture: float) -> tuple[se2.Pose, bool, int]:
+        """Iterate projection and Gauss-Newton steps; return (estimate, converged, count).
+
+        ``sample`` is the surface at the ``chosen`` points under ``estimate`` within the
+        ``capture`` radius. Two stages: the approach, until a step moves less than
+        ``coarse_tolerance``, then the refinement on a fixed inlier set. The approach
+        reaches out to the capture radius only when the guess is off; after a good
+        guess it keeps to the fine radius, where clutter a little off the walls has no
+        surface value.
+        """
+        cfg = self.config
         far = float(np.median(np.abs(sample.value))) > COARSE_FRACTION * cfg.radius
         approach_radius = capture if far else cfg.radius
         approach = True
@@ -273,8 +315,7 @@ class ImlsMatcher(ScanMatcher):
                 chosen, sample, ok = chosen[inlier], _subset(sample, inlier), ok[inlier]
                 gated, previous_step, gain = True, np.zeros(3), 1.0
             if np.count_nonzero(ok) < cfg.min_correspondences:
-                return MatchResult.failure(estimate, iterations, int(np.count_nonzero(ok)),
-                                           'too few points on the surface')
+                break
             normals = sample.normal[ok] if cfg.projection_normal == 'nearest' \
                 else sample.mean_normal[ok]
             moved = se2.transform_points(estimate, chosen[ok])
@@ -285,7 +326,7 @@ class ImlsMatcher(ScanMatcher):
                 residuals, cfg.robust_kernel, cfg.robust_scale)
             if cfg.planarity_power > 0.0:
                 weights = weights * planarity(
-                    ref_model.curvature_padded[sample.nearest[ok]]) ** cfg.planarity_power
+                    ref_model.curvature[sample.nearest[ok]]) ** cfg.planarity_power
             step = gauss_newton_step(jacobians, residuals, weights)
             cosine = _cosine(step, previous_step)
             if approach:
@@ -306,8 +347,7 @@ class ImlsMatcher(ScanMatcher):
             elif self.converged_step(gain * step):
                 converged = True
                 break
-        return self._result(reference, current, estimate, converged, iterations,
-                            len(selected))
+        return estimate, converged, iterations
 
     def _result(self, reference: ScanPoints, current: ScanPoints, estimate: se2.Pose,
                 converged: bool, iterations: int, selected: int) -> MatchResult:
@@ -319,7 +359,7 @@ class ImlsMatcher(ScanMatcher):
         normals = sample.normal
         if cfg.information_neighbours > 0:
             smooth = estimate_normals(reference, cfg.information_neighbours,
-                                      cfg.normal_radius, cfg.normal_min_neighbours)
+                                      cfg.normal_radius, INFORMATION_MIN_NEIGHBOURS)
             nearest = np.minimum(sample.nearest, len(reference) - 1)
             normals = smooth.normals[nearest]
             usable = usable & smooth.valid[nearest]

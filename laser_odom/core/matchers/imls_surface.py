@@ -8,9 +8,10 @@ good moving least squares", SODA 2005; used for scan-to-model matching by Descha
 
 over the reference points p_i (with normals n_i) within a radius of x. I(x) is the
 weighted mean of the signed distances of x to the tangent lines of its neighbours:
-on a straight wall it is the exact signed distance, on a curve of radius R it is
-smoothed by about h^2 / R. A query point is projected onto the surface along the
-normal of its nearest reference point, ``y = x - I(x) n`` (IMLS-SLAM section III-C).
+on a straight wall it is the exact signed distance, on a circle of radius R it is
+offset by about h^2 / 4R (the weights reach around the bend). A query point is
+projected onto the surface along the normal of its nearest reference point,
+``y = x - I(x) n`` (IMLS-SLAM section III-C).
 
 Deschaud keeps only a few informative current points (IMLS-SLAM section III-B): each
 point scores, for every degree of freedom, how much a motion along it changes the
@@ -20,7 +21,7 @@ the best points of every list are kept so that no direction becomes unobservable
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -35,8 +36,10 @@ class SurfaceModel:
 
     Row ``n`` of ``points`` and ``normals`` is a zero pad that missing KD-tree
     neighbours (index ``tree.n``) point to; ``usable[n]`` is False, as is ``usable``
-    of every point without a well-defined normal. ``offset`` is ``p_i . n_i``, so the
-    tangent-line distance is ``x . n_i - offset_i``. ``curvature`` is not padded.
+    of every point without a well-defined normal. Derived once: ``offset`` is
+    ``p_i . n_i`` (the tangent-line distance is ``x . n_i - offset_i``), ``normal_x``
+    and ``normal_y`` the normal components, ``curvature`` padded with 0.5 (no
+    planarity).
     """
 
     tree: cKDTree
@@ -44,14 +47,15 @@ class SurfaceModel:
     normals: np.ndarray
     usable: np.ndarray
     curvature: np.ndarray
-    offset: np.ndarray = None  # type: ignore[assignment]
+    offset: np.ndarray = field(init=False)
+    normal_x: np.ndarray = field(init=False)
+    normal_y: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
         """Precompute the tangent-line offsets and contiguous normal components."""
         self.offset = np.einsum('nd,nd->n', self.points, self.normals)
         self.normal_x = np.ascontiguousarray(self.normals[:, 0])
         self.normal_y = np.ascontiguousarray(self.normals[:, 1])
-        self.curvature_padded = np.append(self.curvature, 0.5)
 
 
 @dataclass
@@ -95,7 +99,7 @@ def surface_model(scan: ScanPoints, normal_neighbours: int, normal_radius: float
         points=np.vstack((scan.points, pad)),
         normals=np.vstack((surface.normals, pad)),
         usable=np.append(surface.valid, False),
-        curvature=surface.curvature)
+        curvature=np.append(surface.curvature, 0.5))
     scan.cache[key] = model
     return model
 
@@ -107,7 +111,7 @@ def model_from_arrays(points: np.ndarray, normals: np.ndarray,
     ok = np.ones(n, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
     pad = np.zeros((1, 2))
     return SurfaceModel(cKDTree(points), np.vstack((points, pad)), np.vstack((normals, pad)),
-                        np.append(ok, False), np.zeros(n))
+                        np.append(ok, False), np.zeros(n + 1))
 
 
 def implicit_surface(model: SurfaceModel, queries: np.ndarray, h: float, radius: float,
