@@ -38,6 +38,18 @@ def param(default: Any, description: str, low: float | None = None,
     return field(default=default, metadata={'param': info})
 
 
+def retune(config_type: type, name: str, default: Any) -> Any:
+    """Redeclare an inherited parameter with a new (tuned) default.
+
+    The meaning and range stay those of ``config_type``'s field, written once there, so
+    a matcher's configuration states only what it tunes differently.
+    """
+    for f in fields(config_type):
+        if f.name == name:
+            return field(default=default, metadata=f.metadata)
+    raise ParameterError(f'{config_type.__name__} has no parameter {name!r}')
+
+
 def param_info(config_type: type, name: str) -> ParamInfo:
     """Return the :class:`ParamInfo` of one field of a configuration dataclass."""
     for f in fields(config_type):

@@ -23,7 +23,7 @@ from laser_odom.core.matchers.information import (
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
 from laser_odom.core.normals import estimate_normals
-from laser_odom.core.params import param
+from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
 
 
@@ -56,16 +56,10 @@ class IcpConfig(MatcherConfig):
 
     max_iterations: int = param(
         40, 'Iteration cap of each phase (beam samples, then densified surface).', 1, 500)
-    convergence_translation: float = param(
-        1e-4, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
-    convergence_rotation: float = param(
-        1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
-    covariance_scale: float = param(
-        8.0, 'Factor on the match covariance from the residuals (inflation calibrated so '
-        'that the normalised estimation error squared on simulated runs is about 3).',
-        0.01, 1000.0)
-    max_correspondence_distance: float = param(
-        0.3, 'Pairs farther apart than this [m] are not correspondences.', 0.01, 10.0)
+    convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
+    convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
+    covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 8.0)
+    max_correspondence_distance: float = retune(MatcherConfig, 'max_correspondence_distance', 0.3)
     min_keep_fraction: float = param(
         0.8, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0)
     max_keep_fraction: float = param(

@@ -49,7 +49,7 @@ from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import (
     adaptive_keep_fraction, KERNELS, robust_weights, trimmed_mask)
 from laser_odom.core.normals import estimate_normals
-from laser_odom.core.params import param
+from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
 
 EIGEN_FLOOR = 1e-9
@@ -90,14 +90,9 @@ class ImlsConfig(MatcherConfig):
 
     max_iterations: int = param(
         20, 'Iteration cap of one match (Deschaud uses 20).', 1, 500)
-    convergence_translation: float = param(
-        1e-4, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
-    convergence_rotation: float = param(
-        1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
-    covariance_scale: float = param(
-        1.6, 'Factor on the match covariance from the residuals (inflation calibrated so '
-        'that the normalised estimation error squared on simulated runs is about 3).',
-        0.01, 1000.0)
+    convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
+    convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
+    covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 1.6)
     h: float = param(
         0.05, 'IMLS kernel width h [m]: W_i(x) = exp(-|x - p_i|^2 / h^2). Smaller keeps '
         'corners sharp (on a curve of radius R the surface is off by about h^2 / 4R).',

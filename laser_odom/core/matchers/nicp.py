@@ -30,7 +30,7 @@ from laser_odom.core.matchers.nicp_surface import (
     nicp_surface, NicpSurface, rotation_seed, SurfaceSettings)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import KERNELS, robust_weights
-from laser_odom.core.params import param
+from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
 
 
@@ -38,14 +38,10 @@ from laser_odom.core.scan import ScanPoints
 class NicpConfig(MatcherConfig):
     """NICP settings; the defaults are tuned on the fr079, MIT-CSAIL and Intel logs."""
 
-    max_iterations: int = param(
-        40, 'Iteration cap of one match.', 1, 500)
-    max_correspondence_distance: float = param(
-        0.5, 'Pairs farther apart than this [m] are not correspondences.', 0.01, 10.0)
-    convergence_translation: float = param(
-        1e-4, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
-    convergence_rotation: float = param(
-        1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
+    max_iterations: int = retune(MatcherConfig, 'max_iterations', 40)
+    max_correspondence_distance: float = retune(MatcherConfig, 'max_correspondence_distance', 0.5)
+    convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
+    convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
     convergence_chi2: float = param(
         0.01, '...or when the step changes e^T Omega e by less than this (a step '
         'along a direction the scene hardly constrains, such as a corridor axis).',

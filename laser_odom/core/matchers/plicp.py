@@ -36,7 +36,7 @@ from laser_odom.core.matchers.plicp_solver import solve_design
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
 from laser_odom.core.normals import estimate_normals
-from laser_odom.core.params import param
+from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
 
 
@@ -49,14 +49,9 @@ class PlicpConfig(MatcherConfig):
     max_correspondence_distance: float = param(
         0.15, 'Once the estimate settles, a current point farther than this [m] from '
         'every reference point is not paired.', 0.01, 10.0)
-    convergence_translation: float = param(
-        1e-4, 'Converged when an iteration moves the pose less than this [m]...', 0.0, 1.0)
-    convergence_rotation: float = param(
-        1e-4, '...and rotates it less than this [rad].', 0.0, 1.0)
-    covariance_scale: float = param(
-        2.0, 'Factor on the match covariance from the residuals (inflation calibrated so '
-        'that the normalised estimation error squared on simulated runs is about 3).',
-        0.01, 1000.0)
+    convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
+    convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
+    covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 2.0)
     max_beam_gap: int = param(
         3, 'Reference points whose beam indices differ by more than this do not form '
         'a segment.', 1, 1000)
