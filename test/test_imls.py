@@ -1,27 +1,33 @@
 """Tests of the IMLS-ICP matcher: the implicit surface, selection, recovery, information."""
 
+from dataclasses import replace
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.config import pipeline_config_from_params, PipelineConfig
 from laser_odom.core.datasets import load_dataset
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
-from laser_odom.core.matchers.imls import (
-    gauss_newton_step, ImlsConfig, ImlsMatcher, point_to_plane_system)
+from laser_odom.core.matchers.base import MatchResult
+from laser_odom.core.matchers.imls import ImlsConfig, ImlsMatcher
+from laser_odom.core.matchers.imls_solver import (
+    fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system)
 from laser_odom.core.matchers.imls_surface import (
     implicit_surface, model_from_arrays, observability_scores, planarity,
     project_onto_surface, select_informative, surface_model)
 from laser_odom.core.metrics import evaluate
-from laser_odom.core.params import ParameterError
+from laser_odom.core.params import as_dict, ParameterError
 from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import scan_to_points, ScanPoints
 from laser_odom.core.simulation import geometry as geo
 from laser_odom.core.simulation import get_world, LaserModel, render_scan, World
 
+CONFIG_FILE = Path(__file__).resolve().parents[1] / 'config' / 'imls.yaml'
 H = 0.1
 RADIUS = 0.3
 
@@ -205,6 +211,80 @@ def test_point_to_plane_jacobians_match_finite_differences():
         np.testing.assert_allclose(jacobians[:, k], (plus - minus) / (2 * eps), atol=1e-7)
 
 
+def test_inverted_information_is_the_covariance_of_the_inverse():
+    # Carrying H of U to T = U^-1 must agree with propagating U's covariance through
+    # the Jacobian of the inverse: Sigma_T = J Sigma_U J^T.
+    backward = se2.pose(0.4, -0.3, 0.7)
+    root = np.array([[2.0, 0.3, 0.1], [0.0, 1.5, -0.2], [0.0, 0.0, 0.8]])
+    information = root.T @ root * 100.0
+    jacobian = se2.inverse_jacobian(backward)
+    expected = jacobian @ np.linalg.inv(information) @ jacobian.T
+    carried = inverted_information(backward, information)
+    np.testing.assert_allclose(np.linalg.inv(carried), expected, rtol=1e-9, atol=1e-12)
+
+
+def test_fusion_weighs_the_two_directions_by_their_information():
+    forward = se2.pose(0.10, 0.00, 0.020)
+    other = se2.pose(0.12, 0.02, 0.030)                   # the backward estimate of T
+    backward = se2.inverse(other)
+    information = np.diag([1e4, 1e4, 1e5])
+    jacobian = se2.inverse_jacobian(backward)
+    # Same information about T from both sides: the midpoint.
+    same = jacobian.T @ information @ jacobian
+    fused, difference = fuse_directions(forward, information, backward, same)
+    np.testing.assert_allclose(fused, 0.5 * (forward + other), atol=1e-9)
+    np.testing.assert_allclose(difference, other - forward, atol=1e-12)
+    # Three times the information: three quarters of the way.
+    fused, _ = fuse_directions(forward, information, backward, 3.0 * same)
+    np.testing.assert_allclose(fused, forward + 0.75 * (other - forward), atol=1e-9)
+    # No information about x on the backward side: x stays with the forward estimate.
+    blind = jacobian.T @ np.diag([0.0, 1e4, 1e5]) @ jacobian
+    fused, _ = fuse_directions(forward, information, backward, blind)
+    assert abs(fused[0] - forward[0]) < 1e-9
+    np.testing.assert_allclose(fused[1:], 0.5 * (forward[1:] + other[1:]), atol=1e-9)
+
+
+def test_symmetric_match_averages_out_a_sparse_noisy_reference():
+    # A 1-degree reference with 2 cm noise against a dense exact current scan: the
+    # forward match inherits the reference's noise, the backward one does not.
+    office = get_world('office')
+    sparse = LaserModel(beams=180, fov=2.0 * math.pi, max_range=20.0, noise_sigma=0.02)
+    dense = LaserModel(beams=1080, fov=2.0 * math.pi, max_range=20.0, noise_sigma=0.0)
+    symmetric = create_matcher('imls')
+    forward_only = create_matcher('imls', {'symmetric': False})
+    rng = np.random.default_rng(1)
+    start = se2.pose(10.0, -5.0, 1.0)
+    errors = []
+    for k in range(20):
+        truth = se2.pose(rng.uniform(0.0, 0.2), rng.uniform(-0.05, 0.05),
+                         rng.uniform(-0.1, 0.1))
+        reference = _scan(office, start, sparse, seed=2 * k)
+        current = _scan(office, se2.compose(start, truth), dense, seed=2 * k + 1)
+        guess = truth + np.array([0.01, 0.01, 0.005])
+        both = symmetric.match(reference, current, guess)
+        assert both.extra['symmetric']
+        one = forward_only.match(reference, current, guess)
+        errors.append([abs(se2.relative(truth, r.pose)[2]) for r in (one, both)])
+    one_way, two_way = np.degrees(np.mean(errors, axis=0))
+    assert two_way < 0.75 * one_way          # measured 0.032 against 0.057 deg
+
+
+def test_a_backward_match_that_lost_the_surface_is_not_fused():
+    matcher = create_matcher('imls')
+    forward = MatchResult(se2.pose(0.1, 0.0, 0.02), True, 4, 0.9, 0.01, np.eye(3) * 1e4,
+                          np.eye(3) * 1e-4, 100, extra={'selected': 100})
+    far = replace(forward, pose=se2.inverse(se2.pose(0.6, 0.0, 0.02)))
+    kept = matcher._symmetric(forward, far)
+    np.testing.assert_array_equal(kept.pose, forward.pose)
+    assert kept.extra == {'selected': 100, 'symmetric': False}
+    failed = replace(forward, pose=se2.inverse(se2.pose(0.12, 0.0, 0.02)), converged=False)
+    assert not matcher._symmetric(forward, failed).extra['symmetric']
+    near = replace(forward, pose=se2.inverse(se2.pose(0.12, 0.0, 0.02)))
+    fused = matcher._symmetric(forward, near)
+    assert fused.extra['symmetric'] and fused.iterations == 8
+    assert fused.pose[0] == pytest.approx(0.11, abs=1e-3)
+
+
 @pytest.mark.parametrize('truth, guess', [
     (se2.pose(0.12, -0.05, 0.04), se2.pose()),
     (se2.pose(-0.25, 0.15, -0.12), se2.pose(-0.1, 0.1, -0.05)),
@@ -254,6 +334,16 @@ def test_registered_with_validated_parameters():
         create_matcher('imls', {'h': -1.0})
     with pytest.raises(ParameterError):
         create_matcher('imls', {'robust_kernel': 'bogus'})
+
+
+def test_yaml_restates_the_tuned_defaults():
+    document = yaml.safe_load(CONFIG_FILE.read_text())
+    params = document['laser_odom']['ros__parameters']
+    assert params['matcher'] == 'imls'
+    assert params['imls'] == as_dict(ImlsConfig())
+    flat = {'matcher': 'imls', **{f'imls.{k}': v for k, v in params['imls'].items()}}
+    config = pipeline_config_from_params(flat)
+    assert config.matcher == 'imls' and config.matcher_config == ImlsConfig()
 
 
 def test_pipeline_tracks_a_noisy_drive_through_the_room():

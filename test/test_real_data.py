@@ -28,14 +28,9 @@ def datasets(shared_data_dir):
 
 
 CASES = [(m, d) for m in ('plicp', 'nicp', 'imls') for d in sorted(CSM_BAR)]
-KNOWN_GAPS = {
-    ('imls', 'intel'): 'IMLS mean rotational RPE on intel is 0.42 deg against the 0.40 bar',
-}
 
 
-@pytest.mark.parametrize('matcher, dataset', [
-    pytest.param(m, d, marks=pytest.mark.xfail(reason=KNOWN_GAPS[(m, d)], strict=True))
-    if (m, d) in KNOWN_GAPS else (m, d) for m, d in CASES])
+@pytest.mark.parametrize('matcher, dataset', CASES)
 def test_matcher_meets_the_csm_bar(datasets, matcher, dataset):
     row = benchmark_run(datasets[dataset], matcher, 'constant_velocity')
     trans, rot, ate, failed = CSM_BAR[dataset]

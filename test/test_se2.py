@@ -67,3 +67,12 @@ def test_compose_jacobians_match_finite_differences():
         db = (se2.compose(a, b + d) - se2.compose(a, b - d)) / (2 * eps)
         assert np.allclose(da, ja[:, k], atol=1e-6)
         assert np.allclose(db, jb[:, k], atol=1e-6)
+
+
+def test_inverse_jacobian_matches_finite_differences():
+    pose = np.array([0.3, -0.7, 2.9])
+    eps = 1e-6
+    numeric = np.column_stack([
+        se2.wrap_angle(se2.inverse(pose + eps * unit) - se2.inverse(pose - eps * unit))
+        / (2 * eps) for unit in np.eye(3)])
+    np.testing.assert_allclose(se2.inverse_jacobian(pose), numeric, atol=1e-8)

@@ -86,6 +86,21 @@ def adjoint(p: Pose) -> np.ndarray:
     return np.array([[c, -s, p[1]], [s, c, -p[0]], [0.0, 0.0, 1.0]])
 
 
+def inverse_jacobian(a: Pose) -> np.ndarray:
+    """Return the Jacobian of ``inverse(a)`` with respect to ``a`` (``[x, y, theta]``).
+
+    ``inverse(a) = (-R^T t, -theta)``; the Jacobian maps a perturbation of a pose to
+    that of its inverse, e.g. to carry the covariance of a match made the other way
+    round (reference against current) into the frame of the forward one.
+    """
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([
+        [-c, -s, s * a[0] - c * a[1]],
+        [s, -c, c * a[0] + s * a[1]],
+        [0.0, 0.0, -1.0],
+    ])
+
+
 def compose_jacobians(a: Pose, b: Pose) -> tuple[np.ndarray, np.ndarray]:
     """Return the Jacobians of ``compose(a, b)`` with respect to a and to b.
 

@@ -19,6 +19,13 @@ III, brought to 2D scan-to-scan odometry:
    would hide the very degeneracy (a corridor) that the pipeline reads from the
    eigenvalues. Its normals come from wider neighbourhoods (``information_neighbours``)
    so that normal noise does not pose as information along a wall.
+5. Scan-to-scan, the roles of the two scans are not symmetric: the surface comes
+   from the reference, so its sparse sampling and noisy normals (far walls,
+   one-degree beams) pass into the estimate. With ``symmetric`` the reference is also
+   matched against the current scan's surface, from the inverse of the result, and
+   the two estimates are fused by their information (the minimum of the sum of both
+   costs, to second order; the idea of two-sided point-to-plane costs, cf.
+   Rusinkiewicz, "A symmetric objective function for ICP", SIGGRAPH 2019).
 
 What the paper leaves to the application (it matches to a model of many scans after
 a good motion prior) is handled for scan-to-scan odometry with a constant-velocity
@@ -33,12 +40,15 @@ jumps as the nearest point changes and plain steps can cycle.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
+from laser_odom.core.matchers.imls_solver import (
+    advance, fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system,
+    ROTATION_LEVER, step_cosine)
 from laser_odom.core.matchers.imls_surface import (
     implicit_surface, observability_scores, planarity, project_onto_surface,
     select_informative, surface_model, SurfaceModel, SurfaceSample)
@@ -51,9 +61,6 @@ from laser_odom.core.matchers.robust import (
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
-
-EIGEN_FLOOR = 1e-9
-"""Relative eigenvalue below which a Gauss-Newton direction is left unchanged."""
 
 INFORMATION_MIN_NEIGHBOURS = 4
 """Points whose smoother normal rests on fewer neighbours add no information."""
@@ -79,9 +86,6 @@ ALIGNED_COSINE = 0.9
 
 MAX_GAIN = 8.0
 """...doubling the step each time, up to this factor."""
-
-ROTATION_LEVER = 5.0
-"""Metres per radian when comparing steps (a typical range of the scan points)."""
 
 
 @dataclass
@@ -151,36 +155,9 @@ class ImlsConfig(MatcherConfig):
         choices=KERNELS)
     robust_scale: float = param(
         0.05, 'Scale [m] of the robust kernel.', 1e-4, 10.0)
-
-
-def point_to_plane_system(pose: se2.Pose, points: np.ndarray, normals: np.ndarray,
-                          targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return residuals ``n . (R p + t - y)`` and their Jacobians (IMLS-SLAM eq. 2).
-
-    The Jacobians are with respect to ``[x, y, theta]`` of ``pose`` itself (R = R(theta),
-    t = (x, y)), so the Gauss-Newton increment is added to the pose directly.
-    """
-    rotated = se2.transform_points(np.array([0.0, 0.0, pose[2]]), points)
-    residuals = np.einsum('nd,nd->n', rotated + pose[:2] - targets, normals)
-    return residuals, point_to_line_jacobians(rotated, normals)
-
-
-def gauss_newton_step(jacobians: np.ndarray, residuals: np.ndarray,
-                      weights: np.ndarray) -> np.ndarray:
-    """Return ``-H^+ J^T W r`` with ``H = J^T W J``; unconstrained directions stay put.
-
-    The pseudo-inverse drops eigen-directions weaker than ``EIGEN_FLOOR`` times the
-    strongest, so a direction the points do not constrain at all (points on one wall
-    only) keeps its value instead of taking a step from round-off. Weak but real
-    constraints are kept; the pipeline judges degeneracy from the information.
-    """
-    weighted = jacobians * weights[:, None]
-    hessian = weighted.T @ jacobians
-    gradient = weighted.T @ residuals
-    values, vectors = np.linalg.eigh(hessian)
-    strongest = max(float(values[-1]), 1e-300)
-    inverse = np.where(values > EIGEN_FLOOR * strongest, 1.0 / np.maximum(values, 1e-300), 0.0)
-    return -(vectors * inverse) @ (vectors.T @ gradient)
+    symmetric: bool = param(
+        True, 'Also match the reference against the current scan and fuse both '
+        'estimates: averages out the sampling and normal errors of a sparse reference.')
 
 
 @register
@@ -218,7 +195,7 @@ class ImlsMatcher(ScanMatcher):
         return trimmed_mask(residuals, keep)
 
     def _rotation_search(self, reference: ScanPoints, points: np.ndarray,
-                         guess: se2.Pose) -> se2.Pose:
+                         guess: se2.Pose, search_angle: float) -> se2.Pose:
         """Re-seed the heading when the guess leaves most points off the reference.
 
         A constant-velocity guess misses the heading most when the robot starts or
@@ -239,9 +216,9 @@ class ImlsMatcher(ScanMatcher):
         best, best_overlap = guess, overlap(guess)
         if best_overlap >= SEARCH_OVERLAP:
             return guess
-        count = int(np.floor(cfg.search_angle / SEARCH_STEP))
+        count = int(np.floor(search_angle / SEARCH_STEP))
         for offset in SEARCH_STEP * np.arange(-count, count + 1):
-            candidate = _advance(guess, np.array([0.0, 0.0, offset]))
+            candidate = advance(guess, np.array([0.0, 0.0, offset]))
             value = overlap(candidate)
             if value > best_overlap:
                 best, best_overlap = candidate, value
@@ -249,7 +226,48 @@ class ImlsMatcher(ScanMatcher):
 
     def match(self, reference: ScanPoints, current: ScanPoints,
               initial_guess: se2.Pose) -> MatchResult:
-        """Align ``current`` to ``reference`` starting from ``initial_guess``."""
+        """Align ``current`` to ``reference`` starting from ``initial_guess``.
+
+        With ``symmetric`` the reference is then also matched against the current
+        scan's surface, from the inverse of the forward result, and the two estimates
+        are fused (:meth:`_symmetric`).
+        """
+        forward = self._match_directed(reference, current, initial_guess,
+                                       self.config.search_angle)
+        if not self.config.symmetric or not forward.converged:
+            return forward
+        backward = self._match_directed(current, reference, se2.inverse(forward.pose), 0.0)
+        return self._symmetric(forward, backward)
+
+    def _symmetric(self, forward: MatchResult, backward: MatchResult) -> MatchResult:
+        """Fuse a forward match with the backward one (reference against current).
+
+        Scan-to-scan IMLS is lopsided: the surface is built from one scan and sampled
+        by the other, so where the reference is sparse (far walls, one-degree beams)
+        its sampling and normal errors pass straight into the pose. Matching the other
+        way round swaps the roles; the information-weighted mean of the two estimates
+        (the minimum of the sum of both costs, to second order) averages those errors
+        out. A backward match that failed, or that left the forward one by more than
+        the surface ``radius`` (it lost the surface), is not used. The information is
+        the mean of the two, not their sum: both directions rest on the same points.
+        """
+        if backward.converged:
+            fused, difference = fuse_directions(forward.pose, forward.information,
+                                                backward.pose, backward.information)
+            apart = max(float(np.hypot(difference[0], difference[1])),
+                        ROTATION_LEVER * abs(float(difference[2])))
+            if apart <= self.config.radius:
+                information = 0.5 * (forward.information + inverted_information(
+                    backward.pose, backward.information))
+                return replace(forward, pose=fused, information=information,
+                               covariance=covariance_from_information(information),
+                               iterations=forward.iterations + backward.iterations,
+                               extra={**forward.extra, 'symmetric': True})
+        return replace(forward, extra={**forward.extra, 'symmetric': False})
+
+    def _match_directed(self, reference: ScanPoints, current: ScanPoints,
+                        initial_guess: se2.Pose, search_angle: float) -> MatchResult:
+        """Match ``current`` against the surface of ``reference`` (one direction)."""
         cfg = self.config
         estimate = np.array(initial_guess, dtype=float)
         if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
@@ -260,8 +278,8 @@ class ImlsMatcher(ScanMatcher):
         # Selection (section III-B) among current points that reach the surface at the
         # initial guess, within the capture radius.
         capture = max(cfg.radius, cfg.max_correspondence_distance)
-        if cfg.search_angle > 0.0:
-            estimate = self._rotation_search(reference, points, estimate)
+        if search_angle > 0.0:
+            estimate = self._rotation_search(reference, points, estimate, search_angle)
         sample = self._surface(ref_model, se2.transform_points(estimate, points), capture)
         scores = observability_scores(points, cur_model.normals[:-1],
                                       cur_model.curvature[:-1])
@@ -271,7 +289,7 @@ class ImlsMatcher(ScanMatcher):
             return MatchResult.failure(estimate, 0, len(selected),
                                        'too few points on the surface')
         estimate, converged, iterations = self._refine(
-            ref_model, points[selected], _subset(sample, selected), estimate, capture)
+            ref_model, points[selected], sample.subset(selected), estimate, capture)
         return self._result(reference, current, estimate, converged, iterations,
                             len(selected))
 
@@ -307,7 +325,7 @@ class ImlsMatcher(ScanMatcher):
                 # iterations do not cycle between sets.
                 inlier = np.zeros_like(ok)
                 inlier[ok] = self._inliers(sample.value[ok])
-                chosen, sample, ok = chosen[inlier], _subset(sample, inlier), ok[inlier]
+                chosen, sample, ok = chosen[inlier], sample.subset(inlier), ok[inlier]
                 gated, previous_step, gain = True, np.zeros(3), 1.0
             if np.count_nonzero(ok) < cfg.min_correspondences:
                 break
@@ -323,7 +341,7 @@ class ImlsMatcher(ScanMatcher):
                 weights = weights * planarity(
                     ref_model.curvature[sample.nearest[ok]]) ** cfg.planarity_power
             step = gauss_newton_step(jacobians, residuals, weights)
-            cosine = _cosine(step, previous_step)
+            cosine = step_cosine(step, previous_step)
             if approach:
                 # Far from the solution, pairings change a little every iteration and
                 # the steps creep along one direction: extrapolate them (accelerated
@@ -334,7 +352,7 @@ class ImlsMatcher(ScanMatcher):
                 # plain steps can cycle between two poses; shrink them until they settle.
                 gain *= 0.5
             previous_step = step
-            estimate = _advance(estimate, gain * step)
+            estimate = advance(estimate, gain * step)
             if approach:
                 moved_by = max(float(np.hypot(step[0], step[1])), abs(float(step[2])))
                 approach = (moved_by >= cfg.coarse_tolerance
@@ -377,24 +395,3 @@ class ImlsMatcher(ScanMatcher):
             residual=float(np.sqrt(np.mean(np.square(residuals)))),
             information=information, covariance=covariance_from_information(information),
             correspondences=count, extra={'selected': selected})
-
-
-def _cosine(step: np.ndarray, previous: np.ndarray) -> float:
-    """Return the cosine between two steps, rotation as the arc at ``ROTATION_LEVER``."""
-    scale = np.array([1.0, 1.0, ROTATION_LEVER])
-    a, b = step * scale, previous * scale
-    norm = float(np.linalg.norm(a) * np.linalg.norm(b))
-    return float(np.dot(a, b)) / norm if norm > 0.0 else 0.0
-
-
-def _advance(estimate: se2.Pose, step: np.ndarray) -> se2.Pose:
-    """Return ``estimate + step`` with the angle wrapped."""
-    moved = estimate + step
-    moved[2] = se2.wrap_angle(moved[2])
-    return moved
-
-
-def _subset(sample: SurfaceSample, keep: np.ndarray) -> SurfaceSample:
-    """Return the surface sample of the queries selected by ``keep``."""
-    return SurfaceSample(sample.value[keep], sample.normal[keep], sample.defined[keep],
-                         sample.count[keep], sample.mean_normal[keep], sample.nearest[keep])

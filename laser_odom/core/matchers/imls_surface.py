@@ -77,6 +77,11 @@ class SurfaceSample:
     mean_normal: np.ndarray
     nearest: np.ndarray
 
+    def subset(self, keep: np.ndarray) -> SurfaceSample:
+        """Return the sample of the queries selected by ``keep`` (mask or indices)."""
+        return SurfaceSample(self.value[keep], self.normal[keep], self.defined[keep],
+                             self.count[keep], self.mean_normal[keep], self.nearest[keep])
+
 
 def surface_model(scan: ScanPoints, normal_neighbours: int, normal_radius: float,
                   normal_min_neighbours: int, normal_extent: float | None = None
