@@ -105,7 +105,7 @@ class ImlsConfig(MatcherConfig):
         0.3, 'Neighbourhood radius [m] of the IMLS sums; a point with no reference point '
         'this close has no surface value (clutter off the walls drops out).', 0.01, 10.0)
     max_neighbours: int = param(
-        8, 'At most this many nearest reference points enter the IMLS sums.', 1, 100)
+        4, 'At most this many nearest reference points enter the IMLS sums.', 1, 100)
     min_neighbours: int = param(
         2, 'A point with fewer reference points within the radius has no surface '
         'value and is skipped.', 1, 100)
