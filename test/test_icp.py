@@ -7,8 +7,8 @@ import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.matchers import create_matcher
-from laser_odom.core.matchers.icp import align_svd, densify
-from laser_odom.core.scan import scan_to_points, ScanPoints
+from laser_odom.core.matchers.icp import align_svd
+from laser_odom.core.scan import densify, scan_to_points, ScanPoints
 from laser_odom.core.simulation import get_world, LaserModel, render_scan
 
 MOTION = se2.pose(0.3, 0.0, math.radians(10.0))

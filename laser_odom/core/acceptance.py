@@ -1,22 +1,31 @@
-"""Judging a match before it is integrated: acceptance and degeneracy, for all matchers.
+"""Judging a match before it is integrated: acceptance, ambiguity and degeneracy.
 
-A match is accepted only if it converged, paired enough of the scan, and stayed close
-to the prediction. Directions that the scene does not constrain (the axis of a
-featureless corridor) are found from the eigen-decomposition of the match's
-information matrix; along them the estimate keeps the prediction and a large variance
-(in the spirit of Zhang, Kaess & Singh, "On degeneracy of optimization-based state
-estimation problems", ICRA 2016).
+A match from a trusted prediction is accepted only if it converged, paired enough of
+the scan and stayed within ``max_correction_*`` of the prediction. A match found by
+the global search is judged by its own evidence instead: the search window is its
+gate, and two distinct poses that fit alike make it ambiguous - reported degenerate,
+with a covariance that covers the alternatives. Directions that the scene does not
+constrain (the axis of a featureless corridor) are found from the eigen-decomposition
+of the match's information matrix; along them the estimate keeps the prediction and a
+large variance (in the spirit of Zhang, Kaess & Singh, "On degeneracy of
+optimization-based state estimation problems", ICRA 2016).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.config import AcceptanceConfig
+from laser_odom.core.config import AcceptanceConfig, PipelineConfig
 from laser_odom.core.matchers import MatchResult
+from laser_odom.core.search import SearchWindow
+
+if TYPE_CHECKING:  # pragma: no cover - typing only, registration imports this module
+    from laser_odom.core.registration import Registration
 
 DEGENERATE_VARIANCE = 1.0
 """Variance given to a degenerate direction [m^2 or rad^2]: as uncertain as the prior."""
@@ -34,21 +43,87 @@ class MatchVerdict:
     status: str
 
 
-def rejection_reason(match: MatchResult, guess: se2.Pose,
-                     config: AcceptanceConfig) -> str | None:
-    """Return why a match is rejected, or None if it is acceptable."""
+def correction_from(guess: se2.Pose, pose: se2.Pose) -> tuple[float, float]:
+    """Return how far ``pose`` lies from ``guess``: distance [m] and |angle| [rad]."""
+    correction = se2.relative(guess, pose)
+    return float(np.hypot(correction[0], correction[1])), abs(float(correction[2]))
+
+
+def _quality_reason(match: MatchResult, config: AcceptanceConfig,
+                    inlier_ratio: float) -> str | None:
+    """Return why a match is unusable whatever the prediction, or None."""
     if not match.converged:
         return 'not_converged'
     if not (se2.is_finite_pose(match.pose) and np.all(np.isfinite(match.covariance))):
         return 'non_finite'
-    if match.inlier_ratio < config.min_inlier_ratio:
+    if inlier_ratio < config.min_inlier_ratio:
         return 'low_inlier_ratio'
-    correction = se2.relative(guess, match.pose)
-    if float(np.hypot(correction[0], correction[1])) > config.max_correction_linear:
-        return 'large_correction'
-    if abs(float(correction[2])) > config.max_correction_angular:
+    return None
+
+
+def rejection_reason(match: MatchResult, guess: se2.Pose,
+                     config: AcceptanceConfig) -> str | None:
+    """Return why a match from a trusted prediction is rejected, or None."""
+    reason = _quality_reason(match, config, match.inlier_ratio)
+    if reason is not None:
+        return reason
+    linear, angular = correction_from(guess, match.pose)
+    if linear > config.max_correction_linear or angular > config.max_correction_angular:
         return 'large_correction'
     return None
+
+
+def searched_rejection_reason(match: MatchResult, guess: se2.Pose,
+                              config: AcceptanceConfig, window: SearchWindow) -> str | None:
+    """Return why a match found by the global search is rejected, or None.
+
+    The window (around the guess, axes of the reference frame) is the gate; the
+    refinement may settle up to one search cell beyond its edge. The inlier ratio is
+    the surface overlap measured by the search (the same for every matcher; a NICP
+    pair also needs agreeing normals, which scans a metre apart often lack).
+    """
+    reason = _quality_reason(match, config, searched_inlier_ratio(match))
+    if reason is not None:
+        return 'low_overlap' if reason == 'low_inlier_ratio' else reason
+    offset = np.asarray(match.pose, dtype=float) - guess
+    slack = window.resolution
+    if (max(abs(offset[0]), abs(offset[1])) > window.linear + slack
+            or abs(float(se2.wrap_angle(offset[2]))) > window.angular + slack):
+        return 'outside_window'
+    return None
+
+
+def searched_inlier_ratio(match: MatchResult) -> float:
+    """Return the inlier ratio a searched match is judged by: its surface overlap."""
+    return float(match.extra.get('surface_overlap', match.inlier_ratio))
+
+
+def describe_rejection(reason: str, match: MatchResult, guess: se2.Pose,
+                       config: PipelineConfig, usual_residual: float | None = None) -> str:
+    """Return the reason with the numbers behind it, for the log."""
+    acceptance = config.acceptance
+    linear, angular = correction_from(guess, match.pose)
+    if reason == 'not_converged':
+        return f'not converged after {match.iterations} iterations'
+    if reason == 'low_inlier_ratio':
+        return (f'{match.inlier_ratio:.0%} of the points paired, min_inlier_ratio '
+                f'{acceptance.min_inlier_ratio:.0%}')
+    if reason == 'low_overlap':
+        return (f'{searched_inlier_ratio(match):.0%} of the points on the reference '
+                f'surface, min_inlier_ratio {acceptance.min_inlier_ratio:.0%}')
+    if reason == 'large_correction':
+        return (f'{linear:.2f} m / {math.degrees(angular):.1f} deg from the prediction, gate '
+                f'{acceptance.max_correction_linear:.2f} m / '
+                f'{math.degrees(acceptance.max_correction_angular):.1f} deg')
+    if reason == 'outside_window':
+        window = config.search.window()
+        return (f'{linear:.2f} m / {math.degrees(angular):.1f} deg from the prediction, '
+                f'outside the search window +-{window.linear:.2f} m / '
+                f'+-{math.degrees(window.angular):.1f} deg')
+    if reason == 'high_residual' and usual_residual:
+        return (f'residual {match.residual:.3f} m, {match.residual / usual_residual:.1f}x '
+                f'the usual {usual_residual:.3f} m')
+    return reason.replace('_', ' ')
 
 
 def metric_scale(length_scale: float) -> np.ndarray:
@@ -78,31 +153,71 @@ def degenerate_directions(information: np.ndarray, length_scale: float,
     return values, vectors, weak
 
 
-def judge_match(match: MatchResult, guess: se2.Pose, config: AcceptanceConfig,
+def judge_match(registration: Registration, guess: se2.Pose, config: PipelineConfig,
                 length_scale: float = 1.0) -> MatchVerdict:
-    """Accept, correct for degeneracy, or reject a match (then use the guess).
+    """Accept, correct for ambiguity and degeneracy, or reject a match (then use the guess).
 
     ``length_scale`` [m] is the typical range of the scan's points, used to compare
     rotational with translational information.
     """
-    reason = rejection_reason(match, guess, config)
+    match = registration.match
+    if registration.searched:
+        reason = searched_rejection_reason(match, guess, config.acceptance,
+                                           config.search.window())
+    else:
+        reason = rejection_reason(match, guess, config.acceptance)
     if reason is not None:
         match.extra['rejection'] = reason
-        pose = guess if config.rejected_motion == 'predict' else se2.pose()
+        pose = guess if config.acceptance.rejected_motion == 'predict' else se2.pose()
         return MatchVerdict(np.array(pose, dtype=float), np.diag(REJECTED_VARIANCE),
                             'rejected')
+    # Along a direction the scene does not constrain the estimate keeps the prediction
+    # - when there is one to trust. Otherwise the searched and refined pose is the best
+    # estimate there is, and its covariance says how weak it is.
+    anchor = guess if registration.trusted else match.pose
+    verdict = _degeneracy(match, anchor, config.acceptance, length_scale)
+    if registration.alternatives:
+        match.extra['ambiguous'] = True
+        verdict = MatchVerdict(verdict.pose, covering_covariance(
+            verdict.pose, verdict.covariance, [pose for pose, _ in registration.alternatives]),
+            'degenerate')
+    return verdict
+
+
+def covering_covariance(pose: se2.Pose, covariance: np.ndarray,
+                        alternatives: list[np.ndarray]) -> np.ndarray:
+    """Return ``covariance + sum_k d_k d_k^T`` with ``d_k`` the offset to alternative k.
+
+    Each alternative then lies within one standard deviation of ``pose``
+    (``d^T (S + d d^T)^-1 d < 1``): the estimate admits it may be any of them.
+    """
+    out = np.array(covariance, dtype=float)
+    for alternative in alternatives:
+        offset = np.asarray(alternative, dtype=float) - pose
+        offset[2] = se2.wrap_angle(offset[2])
+        out = out + np.outer(offset, offset)
+    return 0.5 * (out + out.T)
+
+
+def _degeneracy(match: MatchResult, anchor: se2.Pose, config: AcceptanceConfig,
+                length_scale: float) -> MatchVerdict:
+    """Keep a match, or its correction from ``anchor`` only along the directions it constrains.
+
+    Along the weak directions the pose keeps ``anchor`` (the prediction) and a large
+    variance.
+    """
     values, vectors, weak = degenerate_directions(
         match.information, length_scale, config.degeneracy_min_information)
     if not np.any(weak):
         return MatchVerdict(match.pose.copy(), match.covariance.copy(), 'matched')
     match.degenerate = True
     scale = metric_scale(length_scale)
-    correction = match.pose - guess
+    correction = match.pose - anchor
     correction[2] = se2.wrap_angle(correction[2])
     # Keep the correction only along the well-constrained directions (projection in
     # metric coordinates x' = S^-1 x, where the eigenvectors are orthonormal).
     strong = vectors[:, ~weak]
-    pose = guess + scale * (strong @ (strong.T @ (correction / scale)))
+    pose = anchor + scale * (strong @ (strong.T @ (correction / scale)))
     pose[2] = se2.wrap_angle(pose[2])
     variances = np.where(weak, DEGENERATE_VARIANCE, 1.0 / np.maximum(values, 1e-300))
     metric_covariance = (vectors * variances) @ vectors.T

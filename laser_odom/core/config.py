@@ -14,9 +14,17 @@ from typing import Any, Mapping
 from laser_odom.core.matchers import default_config, matcher_names, MatcherConfig
 from laser_odom.core.params import param, ParameterError, replace_checked
 from laser_odom.core.scan import LaserMounting
+from laser_odom.core.search import SearchWindow
 
 PRIORS = ('none', 'constant_velocity', 'odom', 'imu')
 """Motion priors: ``none`` starts every match at zero motion."""
+
+SEARCH_MODES = ('off', 'recover', 'always')
+"""When the global search runs: never, when the prediction cannot be trusted or the
+local match failed, or before every match."""
+
+DEFAULT_MATCHER = 'nicp'
+"""The matcher with the best real-log figures (README, "which matcher")."""
 
 
 @dataclass
@@ -50,7 +58,8 @@ class MotionConfig:
         'constant_velocity', 'Initial guess of each match: none, constant_velocity, '
         'odom (wheel odometry) or imu (yaw from an IMU).', choices=PRIORS)
     max_scan_gap: float = param(
-        1.0, 'A gap between scans longer than this [s] drops the motion prior.', 0.0, 3600.0)
+        1.0, 'A gap between scans longer than this [s] drops the motion prior (the next '
+        'match is not predicted; the global search recovers it).', 0.0, 3600.0)
 
 
 @dataclass
@@ -60,9 +69,15 @@ class AcceptanceConfig:
     min_inlier_ratio: float = param(
         0.3, 'Reject matches whose fraction of paired points is below this.', 0.0, 1.0)
     max_correction_linear: float = param(
-        0.5, 'Reject matches that move this far [m] from the prediction.', 0.0, 100.0)
+        0.5, 'A match that moves this far [m] from a trusted prediction has failed (it '
+        'is rejected, or checked by the global search).', 0.0, 100.0)
     max_correction_angular: float = param(
-        0.5, 'Reject matches that turn this far [rad] from the prediction.', 0.0, math.pi)
+        0.5, 'A match that turns this far [rad] from a trusted prediction has failed (it '
+        'is rejected, or checked by the global search).', 0.0, math.pi)
+    max_residual_ratio: float = param(
+        3.0, 'A match whose residual exceeds this multiple of the median residual of the '
+        'recent accepted matches is checked by the global search (0 = never).',
+        0.0, 1000.0)
     rejected_motion: str = param(
         'predict', 'On a rejected match: predict (advance by the prior) or hold (no motion).',
         choices=('predict', 'hold'))
@@ -71,6 +86,36 @@ class AcceptanceConfig:
         "measured as the arc at the scan's RMS range] is degenerate (400 = a standard "
         'deviation above 5 cm, a whole step at walking speed) and takes the prediction.',
         0.0, 1e12)
+
+
+@dataclass
+class GlobalSearchConfig:
+    """The correlative global search in front of the matcher (Olson, ICRA 2009)."""
+
+    global_search: str = param(
+        'recover', 'Correlative search of the whole window before the matcher: off, '
+        'recover (when the prediction is not trusted - first match, gap, prior none, '
+        'after a rejection - or the local match failed) or always.', choices=SEARCH_MODES)
+    global_search_linear: float = param(
+        1.5, 'Half-width [m] of the searched window in x and y, around the prediction.',
+        0.0, 20.0)
+    global_search_angular: float = param(
+        math.pi / 2, 'Half-width [rad] of the searched window in rotation.', 0.0, math.pi)
+    global_search_resolution: float = param(
+        0.1, 'Translation step [m] of the search and cell of its likelihood grid; the '
+        'rotation step moves the farthest point searched by one cell.', 0.01, 1.0)
+    global_search_candidates: int = param(
+        3, 'The matcher refines up to this many distinct best poses of the search and '
+        'keeps the one that fits best.', 1, 20)
+    global_search_ambiguity: float = param(
+        0.95, 'A searched match is ambiguous (reported degenerate, with a covariance '
+        'that covers the alternatives) when a distinct refined pose fits at least this '
+        'fraction as well (a featureless corridor, a symmetric room).', 0.5, 1.0)
+
+    def window(self) -> SearchWindow:
+        """Return the searched window."""
+        return SearchWindow(self.global_search_linear, self.global_search_angular,
+                            self.global_search_resolution)
 
 
 @dataclass
@@ -88,12 +133,13 @@ class KeyframeConfig:
 class PipelineConfig:
     """Everything the odometry pipeline needs, grouped by concern."""
 
-    matcher: str = 'icp'
+    matcher: str = DEFAULT_MATCHER
     matcher_config: MatcherConfig | None = None
     scan: ScanConfig = field(default_factory=ScanConfig)
     mounting: MountingConfig = field(default_factory=MountingConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
+    search: GlobalSearchConfig = field(default_factory=GlobalSearchConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
 
     def resolved_matcher_config(self) -> MatcherConfig:
@@ -102,7 +148,7 @@ class PipelineConfig:
             self.matcher)
 
 
-PIPELINE_GROUPS = ('scan', 'mounting', 'motion', 'acceptance', 'keyframes')
+PIPELINE_GROUPS = ('scan', 'mounting', 'motion', 'acceptance', 'search', 'keyframes')
 
 
 def pipeline_config_from_params(values: Mapping[str, Any]) -> PipelineConfig:
@@ -114,7 +160,7 @@ def pipeline_config_from_params(values: Mapping[str, Any]) -> PipelineConfig:
     Parameters that belong to the ROS shell only (frames, topics) are ignored.
     """
     remaining = dict(values)
-    matcher = remaining.pop('matcher', 'icp')
+    matcher = remaining.pop('matcher', DEFAULT_MATCHER)
     if matcher not in matcher_names():
         raise ParameterError(
             f'unknown matcher {matcher!r}; valid names: {", ".join(matcher_names())}')

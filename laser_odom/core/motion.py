@@ -64,16 +64,16 @@ class MotionModel:
             return float(np.mean(window))
         return median if dt < 0.5 * median else dt
 
+    def gap_exceeded(self, dt: float) -> bool:
+        """Tell whether ``dt`` is longer than ``max_scan_gap``: no prediction over it."""
+        return dt > self.config.max_scan_gap
+
     def predict(self, dt: float, prior_step: se2.Pose | None = None,
                 prior_yaw: float | None = None,
                 counters: Counter[str] | None = None) -> se2.Pose:
         """Return the predicted motion (base frame of the previous scan) over ``dt``."""
         cfg = self.config
-        if cfg.prior == 'none':
-            return se2.pose()
-        if dt > cfg.max_scan_gap:
-            if counters is not None:
-                counters['scan_gap'] += 1
+        if cfg.prior == 'none' or self.gap_exceeded(dt):
             return se2.pose()
         constant_velocity = self.velocity * self.effective_dt(dt)
         if cfg.prior == 'odom':

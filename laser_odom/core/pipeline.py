@@ -1,8 +1,10 @@
 """The scan-to-scan odometry pipeline that the node and the replay harness both drive.
 
 Per scan: preprocess (validate, convert to base-frame points), predict the motion
-(constant velocity or an external prior), register against the reference scan, judge
-the match (acceptance, degeneracy), then integrate pose, twist and covariance.
+(constant velocity or an external prior) and decide whether that prediction can be
+trusted, register against the reference scan (the matcher from the prediction, the
+global search when the prediction or the match fails), judge the match (acceptance,
+ambiguity, degeneracy), then integrate pose, twist and covariance.
 """
 
 from __future__ import annotations
@@ -14,11 +16,13 @@ import time
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.acceptance import judge_match
+from laser_odom.core.acceptance import describe_rejection, judge_match, MatchVerdict
 from laser_odom.core.config import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
+from laser_odom.core.registration import (
+    Registrar, Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS)
 from laser_odom.core.scan import LaserScan, ScanPoints
 from laser_odom.core.validation import REJECTIONS, ScanValidator
 
@@ -63,6 +67,7 @@ class OdometryPipeline:
         self.counters: Counter[str] = self.events.counters
         self.validator = ScanValidator(self.config.scan, self.config.mounting, self.events)
         self.motion = MotionModel(self.config.motion)
+        self.registrar = Registrar(self.events)
         self.processing_times: deque[float] = deque(maxlen=TIMING_WINDOW)
         self.reset()
 
@@ -75,10 +80,13 @@ class OdometryPipeline:
         self.keyframe_pose = self.pose.copy()
         self.keyframe_covariance = self.pose_covariance.copy()
         self.last_stamp_ns: int | None = None
+        self.untrusted = 'reset'
         self.motion.reset()
 
     def set_matcher(self, matcher: ScanMatcher) -> None:
         """Switch the matcher; the pose and the reference scan are kept."""
+        if matcher.name != self.matcher.name:
+            self.registrar.residuals.clear()
         self.matcher = matcher
         self.config.matcher = matcher.name
         self.config.matcher_config = matcher.config
@@ -124,8 +132,9 @@ class OdometryPipeline:
         if self.keyframe is None:
             estimate = self._initialise(current, scan.stamp_ns)
         else:
+            untrusted = self._distrust(dt, scan.stamp_ns)
             guess_step = self.motion.predict(dt, prior_step, prior_yaw, self.counters)
-            estimate = self._register(current, guess_step, dt, scan.stamp_ns)
+            estimate = self._register(current, guess_step, dt, scan.stamp_ns, untrusted)
         estimate.processing_time = time.perf_counter() - started
         self.processing_times.append(estimate.processing_time)
         self.counters['processed'] += 1
@@ -148,6 +157,18 @@ class OdometryPipeline:
         self.last_stamp_ns = stamp_ns
         return 0.0 if last is None else (stamp_ns - last) * 1e-9
 
+    def _distrust(self, dt: float, stamp_ns: int) -> str:
+        """Return why this match's prediction cannot be trusted ('' when it can)."""
+        motion = self.config.motion
+        if motion.prior == 'none':
+            return 'no_prior'
+        if self.motion.gap_exceeded(dt):
+            self.events.warn('scan_gap', f'{dt:.2f} s between the scans before '
+                             f't={stamp_ns * 1e-9:.3f}, longer than max_scan_gap '
+                             f'({motion.max_scan_gap:g} s): the motion prior is dropped')
+            return 'gap'
+        return self.untrusted
+
     def _initialise(self, current: ScanPoints, stamp_ns: int) -> OdometryEstimate:
         """Take the first scan (or the first after a reset) as the reference."""
         self._set_keyframe(current)
@@ -155,18 +176,13 @@ class OdometryPipeline:
                                 np.zeros(3), np.eye(3) * 1e-6, 'initialized')
 
     def _register(self, current: ScanPoints, guess_step: se2.Pose, dt: float,
-                  stamp_ns: int) -> OdometryEstimate:
+                  stamp_ns: int, untrusted: str) -> OdometryEstimate:
         """Match against the keyframe, judge the match and integrate the step."""
         guess = se2.relative(self.keyframe_pose, se2.compose(self.pose, guess_step))
-        match = self._match(current, guess)
-        verdict = judge_match(match, guess, self.config.acceptance, current.length_scale)
-        if verdict.status == 'rejected':
-            reason = match.extra.get('rejection', 'unknown')
-            action = ('advancing by the prediction'
-                      if self.config.acceptance.rejected_motion == 'predict'
-                      else 'holding the pose')
-            self.events.warn('rejected_' + reason, f'match at t={stamp_ns * 1e-9:.3f} '
-                             f'rejected ({reason}); {action}')
+        registration = self.registrar.register(self.matcher, self.keyframe, current, guess,
+                                               self.config, untrusted)
+        verdict = judge_match(registration, guess, self.config, current.length_scale)
+        self._say_why(registration, verdict, guess, stamp_ns)
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         ja, jb = se2.compose_jacobians(self.keyframe_pose, verdict.pose)
         new_covariance = (ja @ self.keyframe_covariance @ ja.T
@@ -177,10 +193,13 @@ class OdometryPipeline:
         if verdict.status == 'rejected':
             # The prediction may be what was wrong: keeping its velocity would make every
             # later (correct) match a large correction, and the odometry would run away
-            # on the prediction. The next match starts from rest instead.
+            # on the prediction. The next match starts from rest, untrusted.
             self.motion.reset()
+            self.untrusted = 'rejected'
         else:
             self.motion.update(step, dt)
+            self.registrar.accepted(registration.match)
+            self.untrusted = ''
         if verdict.status == 'rejected' or self._keyframe_expired(verdict.pose):
             # After a rejection the current scan becomes the reference at the predicted
             # pose: a bad prediction then costs one step, instead of misleading every
@@ -191,26 +210,34 @@ class OdometryPipeline:
         twist_cov = (step_covariance / (rate_dt * rate_dt) if rate_dt > 0
                      else step_covariance * 1e6)
         return OdometryEstimate(stamp_ns, new_pose, self.pose_covariance.copy(), twist,
-                                twist_cov, verdict.status, match)
+                                twist_cov, verdict.status, registration.match)
 
-    def _match(self, current: ScanPoints, guess: se2.Pose) -> MatchResult:
-        """Run the matcher; an internal error becomes a failed match, never a crash.
-
-        Odometry must keep running on input nobody foresaw; the error is counted as
-        ``matcher_error`` and said (throttled) so that it gets reported and fixed.
-        The matcher's ``covariance_scale`` calibration is applied here, once for all.
-        """
-        try:
-            match = self.matcher.match(self.keyframe, current, guess)
-        except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as error:
-            self.events.warn('matcher_error', f'{self.matcher.name} failed on a scan: '
-                             f'{error!r}')
-            return MatchResult.failure(guess, reason='matcher_error')
-        scale = self.matcher.config.covariance_scale
-        if scale != 1.0:
-            match.covariance = match.covariance * scale
-            match.information = match.information / scale
-        return match
+    def _say_why(self, registration: Registration, verdict: MatchVerdict, guess: se2.Pose,
+                 stamp_ns: int) -> None:
+        """Count and say (throttled) the global search, ambiguity and rejection, with numbers."""
+        at = f't={stamp_ns * 1e-9:.3f}'
+        match = registration.match
+        trigger = registration.trigger
+        if trigger in ROUTINE_TRIGGERS:
+            self.events.count(f'search_{trigger}')
+        elif trigger:
+            why = SEARCH_TRIGGERS[trigger]
+            if registration.local_failure:
+                why += f' ({registration.failure_detail})'
+            self.events.warn(f'search_{trigger}', f'global search at {at}: {why}; '
+                             f'{registration.outcome(guess)}')
+        if verdict.status == 'rejected':
+            reason = match.extra.get('rejection', 'unknown')
+            action = ('advancing by the prediction'
+                      if self.config.acceptance.rejected_motion == 'predict'
+                      else 'holding the pose')
+            detail = describe_rejection(reason, match, guess, self.config)
+            self.events.warn('rejected_' + reason,
+                             f'match at {at} rejected ({detail}); {action}')
+        elif registration.alternatives:
+            self.events.warn('ambiguous', f'match at {at} is ambiguous: '
+                             f'{registration.describe_alternatives()}; reported degenerate '
+                             'with a covariance that covers the alternatives')
 
     def _keyframe_expired(self, keyframe_to_current: se2.Pose) -> bool:
         """Tell whether the current scan becomes the new reference."""

@@ -24,15 +24,11 @@ from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param, retune
-from laser_odom.core.scan import ScanPoints
+from laser_odom.core.scan import densify, ScanPoints
 
 
 ACCELERATION_COSINE = float(np.cos(np.radians(10.0)))
 """Successive steps closer than 10 deg in direction count as one consistent creep."""
-
-
-MAX_DENSE_POINTS = 20000
-"""Upper bound on the points a densified reference adds (bounds time on huge scans)."""
 
 
 def align_svd(source: np.ndarray, target: np.ndarray,
@@ -70,29 +66,6 @@ class IcpConfig(MatcherConfig):
     max_densify_gap: float = param(
         0.3, 'Only interpolate between neighbouring beams closer than this [m] (a larger '
         'gap is a range discontinuity, not a surface).', 0.0, 10.0)
-
-
-def densify(scan: ScanPoints, spacing: float, max_gap: float) -> np.ndarray:
-    """Return the scan's points plus points interpolated along its surface.
-
-    Consecutive beams closer than ``max_gap`` are taken to lie on one surface and the
-    segment between them is filled every ``spacing`` metres. Point-to-point pairs then
-    land near the true surface point instead of the nearest beam sample, which removes
-    most of ICP's sampling bias (the reason PL-ICP uses lines instead, Censi 2008).
-    The spacing widens if the surface would need more than ``MAX_DENSE_POINTS``.
-    """
-    points = scan.points
-    if spacing <= 0.0 or len(points) < 2:
-        return points
-    segment = points[1:] - points[:-1]
-    length = np.hypot(segment[:, 0], segment[:, 1])
-    on_surface = (np.diff(scan.beam_index) == 1) & (length < max_gap)
-    spacing = max(spacing, float(length[on_surface].sum()) / MAX_DENSE_POINTS)
-    inserted = np.where(on_surface, np.ceil(length / spacing - 1e-9).astype(int) - 1, 0)
-    owner = np.repeat(np.arange(len(segment)), inserted)
-    rank = np.arange(int(inserted.sum())) - np.repeat(np.cumsum(inserted) - inserted, inserted)
-    fraction = (rank + 1.0) / (inserted[owner] + 1.0)
-    return np.vstack((points, points[:-1][owner] + segment[owner] * fraction[:, None]))
 
 
 @register

@@ -280,16 +280,24 @@ class ImlsMatcher(ScanMatcher):
         capture = max(cfg.radius, cfg.max_correspondence_distance)
         if search_angle > 0.0:
             estimate = self._rotation_search(reference, points, estimate, search_angle)
-        sample = self._surface(ref_model, se2.transform_points(estimate, points), capture)
         scores = observability_scores(points, cur_model.normals[:-1],
                                       cur_model.curvature[:-1])
-        selected = select_informative(scores, cur_model.usable[:-1] & sample.defined,
-                                      cfg.points_per_list)
-        if len(selected) < cfg.min_correspondences:
-            return MatchResult.failure(estimate, 0, len(selected),
-                                       'too few points on the surface')
-        estimate, converged, iterations = self._refine(
-            ref_model, points[selected], sample.subset(selected), estimate, capture)
+        iterations = 0
+        for attempt in range(2):
+            start = estimate
+            sample = self._surface(ref_model, se2.transform_points(estimate, points), capture)
+            selected = select_informative(scores, cur_model.usable[:-1] & sample.defined,
+                                          cfg.points_per_list)
+            if len(selected) < cfg.min_correspondences:
+                return MatchResult.failure(estimate, iterations, len(selected),
+                                           'too few points on the surface')
+            estimate, converged, count = self._refine(
+                ref_model, points[selected], sample.subset(selected), estimate, capture)
+            iterations += count
+            moved = se2.relative(start, estimate)
+            if max(float(np.hypot(moved[0], moved[1])),
+                   ROTATION_LEVER * abs(float(moved[2]))) <= cfg.radius:
+                break
         return self._result(reference, current, estimate, converged, iterations,
                             len(selected))
 

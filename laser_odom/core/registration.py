@@ -1,0 +1,262 @@
+"""Registration: the matcher from the prediction, and the global search that recovers it.
+
+A prediction is a guess. When it is trusted (the constant-velocity or wheel-odometry
+step after an accepted match) the matcher starts from it, and its result is checked:
+converged, enough of the scan paired, a residual near the scan's usual level, and a
+correction inside ``max_correction_*``. When the prediction cannot be trusted (the
+first match, a gap longer than ``max_scan_gap``, ``prior: none``, right after a
+rejection), or the local match failed one of those checks, the correlative search
+(:mod:`laser_odom.core.search`) scores the whole window around the prediction and the
+matcher refines its best few poses. The refined candidates, and the local match when
+it converged, are compared by one matcher-independent measure - how well the current
+points fall on the reference surface (:func:`surface_fit`) - so correct evidence far
+from a wrong prediction wins over it, and two distinct poses that fit alike are found
+and reported (a symmetric room, a featureless corridor) instead of one being taken
+silently.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.acceptance import (
+    correction_from, describe_rejection, rejection_reason, searched_rejection_reason)
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.matchers import MatchResult, ScanMatcher
+from laser_odom.core.scan import ScanPoints
+from laser_odom.core.search import correlative_search, SearchResult
+from laser_odom.core.search.correlative import KEEP_RATIO, pose_distance, search_points
+
+SEARCH_TRIGGERS = {
+    'reset': 'first match after a start, reset or time jump: no prediction yet',
+    'gap': 'the motion prior was dropped after a gap between scans',
+    'no_prior': 'prior is none: every match starts with the global search',
+    'rejected': 'the previous match was rejected, so its prediction is not trusted',
+    'local_failed': 'the match from the prediction failed',
+    'always': 'global_search is always',
+}
+"""Why the global search ran, by trigger name (counted as ``search_<trigger>``)."""
+
+ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always')
+"""Triggers that are how the odometry is meant to run: counted, not warned about."""
+
+RESIDUAL_WINDOW = 50
+"""Accepted matches whose residuals make the scan's usual level (their median)."""
+
+MIN_RESIDUAL_SAMPLES = 10
+"""The residual check starts once this many matches were accepted."""
+
+
+class ResidualLevel:
+    """The usual residual of accepted matches: the median of the recent ones."""
+
+    def __init__(self) -> None:
+        """Start with no history."""
+        self._recent: deque[float] = deque(maxlen=RESIDUAL_WINDOW)
+
+    def clear(self) -> None:
+        """Forget the history (a new matcher measures residuals differently)."""
+        self._recent.clear()
+
+    def add(self, residual: float) -> None:
+        """Record the residual of an accepted match."""
+        if math.isfinite(residual):
+            self._recent.append(float(residual))
+
+    def usual(self) -> float | None:
+        """Return the median recent residual, None before enough matches."""
+        if len(self._recent) < MIN_RESIDUAL_SAMPLES:
+            return None
+        return float(np.median(self._recent))
+
+
+@dataclass
+class Registration:
+    """The match to judge and how it was found.
+
+    ``trigger`` names why the global search ran ('' when it did not);
+    ``local_failure`` why the match from the prediction was not trusted ('' when it
+    was, or was not run) and ``failure_detail`` the numbers behind it.
+    ``alternatives`` are refined poses distinct from the match that fit at least
+    ``global_search_ambiguity`` as well, with their fit ratio. ``trusted`` tells
+    whether the prediction was.
+    """
+
+    match: MatchResult
+    trigger: str = ''
+    local_failure: str = ''
+    failure_detail: str = ''
+    search: SearchResult | None = None
+    alternatives: list[tuple[np.ndarray, float]] = field(default_factory=list)
+    candidates: int = 0
+    trusted: bool = True
+
+    @property
+    def searched(self) -> bool:
+        """Tell whether the global search ran."""
+        return bool(self.trigger)
+
+    def outcome(self, guess: se2.Pose) -> str:
+        """Say what the search found, relative to the prediction."""
+        if self.search is None:
+            return 'too few points to search'
+        if not self.match.converged:
+            return f'none of {self.candidates} refined candidates converged'
+        linear, angular = correction_from(guess, self.match.pose)
+        fit = self.match.extra.get('surface_fit', float('nan'))
+        return (f'best of {self.candidates} refined candidates: {linear:.2f} m / '
+                f'{math.degrees(angular):.1f} deg from the prediction, fit {fit:.2f} '
+                f'(search score {self.search.best.score:.2f})')
+
+    def describe_alternatives(self) -> str:
+        """Say how far the closest-fitting alternative lies and how well it fits."""
+        pose, ratio = max(self.alternatives, key=lambda item: item[1])
+        linear, angular = correction_from(self.match.pose, pose)
+        return (f'a pose {linear:.2f} m / {math.degrees(angular):.1f} deg away fits '
+                f'{ratio:.0%} as well (featureless corridor or symmetric room?)')
+
+
+def surface_fit(reference: ScanPoints, points: np.ndarray, pose: se2.Pose,
+                sigma: float) -> tuple[float, float]:
+    """Return how well ``points`` moved by ``pose`` lie on the reference surface.
+
+    The fit is the mean of ``exp(-d^2 / 2 sigma^2)`` over the points, ``d`` each one's
+    distance to the nearest reference point - the search's likelihood, evaluated
+    exactly at a refined pose; the overlap is the fraction with ``d <= 2 sigma``. Both
+    compare candidates and judge matches whatever the matcher and its residual metric.
+    """
+    if len(points) == 0 or len(reference) == 0:
+        return 0.0, 0.0
+    distance, _ = reference.tree.query(se2.transform_points(pose, points),
+                                       distance_upper_bound=4.0 * sigma)
+    fit = float(np.mean(np.exp(-0.5 * np.square(distance / sigma))))
+    return fit, float(np.mean(distance <= 2.0 * sigma))
+
+
+class Registrar:
+    """Runs the matcher, and the global search when the prediction or the match fails."""
+
+    def __init__(self, events: EventLog) -> None:
+        """Create the registrar; matcher errors are reported to ``events``."""
+        self.events = events
+        self.residuals = ResidualLevel()
+
+    def register(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
+                 guess: se2.Pose, config: PipelineConfig, untrusted: str) -> Registration:
+        """Match ``current`` against ``reference`` from ``guess``.
+
+        ``untrusted`` names why the prediction cannot be trusted ('' when it can).
+        """
+        mode = config.search.global_search
+        if mode == 'always' or (mode == 'recover' and untrusted):
+            local = self.local_match(matcher, reference, current, guess) \
+                if mode == 'always' else None
+            registration = self._search(matcher, reference, current, guess, config,
+                                        'always' if mode == 'always' else untrusted,
+                                        local, '')
+            registration.trusted = not untrusted
+            return registration
+        local = self.local_match(matcher, reference, current, guess)
+        failure = self.local_failure(local, guess, config)
+        if failure and mode == 'recover':
+            registration = self._search(matcher, reference, current, guess, config,
+                                        'local_failed', local, failure)
+            registration.failure_detail = describe_rejection(
+                failure, local, guess, config, self.residuals.usual())
+            return registration
+        return Registration(local, local_failure=failure)
+
+    def accepted(self, match: MatchResult) -> None:
+        """Record an accepted match: its residual joins the scan's usual level."""
+        self.residuals.add(match.residual)
+
+    def local_failure(self, match: MatchResult, guess: se2.Pose,
+                      config: PipelineConfig) -> str:
+        """Return why a match from a trusted prediction failed, '' if it did not."""
+        reason = rejection_reason(match, guess, config.acceptance)
+        if reason is not None:
+            return reason
+        usual = self.residuals.usual()
+        ratio = config.acceptance.max_residual_ratio
+        if usual is not None and ratio > 0.0 and match.residual > ratio * usual:
+            return 'high_residual'
+        return ''
+
+    def local_match(self, matcher: ScanMatcher, reference: ScanPoints,
+                    current: ScanPoints, guess: se2.Pose) -> MatchResult:
+        """Run the matcher; an internal error becomes a failed match, never a crash.
+
+        Odometry must keep running on input nobody foresaw; the error is counted as
+        ``matcher_error`` and said (throttled) so that it gets reported and fixed.
+        The matcher's ``covariance_scale`` calibration is applied here, once for all.
+        """
+        try:
+            match = matcher.match(reference, current, guess)
+        except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as error:
+            self.events.warn('matcher_error', f'{matcher.name} failed on a scan: '
+                             f'{error!r}')
+            return MatchResult.failure(guess, reason='matcher_error')
+        scale = matcher.config.covariance_scale
+        if scale != 1.0:
+            match.covariance = match.covariance * scale
+            match.information = match.information / scale
+        return match
+
+    def _search(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
+                guess: se2.Pose, config: PipelineConfig, trigger: str,
+                local: MatchResult | None, failure: str) -> Registration:
+        """Search the window, refine the best poses, keep the candidate that fits best."""
+        search_config = config.search
+        window = search_config.window()
+        result = correlative_search(
+            reference, current, guess, window, search_config.global_search_candidates,
+            min(KEEP_RATIO, search_config.global_search_ambiguity))
+        candidates = [] if result is None else [
+            self.local_match(matcher, reference, current, peak.pose) for peak in result.peaks]
+        if local is not None:
+            candidates.append(local)
+        converged = [m for m in candidates if m.converged and se2.is_finite_pose(m.pose)]
+        if not converged:
+            fallback = local if local is not None else MatchResult.failure(
+                guess, reason='search found nothing' if result is None else '')
+            return Registration(fallback, trigger, failure, search=result,
+                                candidates=len(candidates))
+        acceptable = [m for m in converged if searched_rejection_reason(
+            m, guess, config.acceptance, window) is None]
+        pool = acceptable or converged
+        points = search_points(current, window.resolution)
+        fits, overlaps = np.array([surface_fit(reference, points, m.pose,
+                                               window.kernel_sigma) for m in pool]).T
+        length_scale = result.length_scale if result is not None else current.length_scale
+        separation = result.separation if result is not None else 3.0 * window.resolution
+        ambiguity = search_config.global_search_ambiguity
+        best = int(np.argmax(fits))
+        if trigger in ('local_failed', 'always'):
+            # The prediction was trusted: among poses the scans cannot tell apart, the
+            # one nearest the prediction is the best guess.
+            alike = np.flatnonzero(fits >= ambiguity * fits[best])
+            near = pose_distance(np.array([pool[i].pose for i in alike]), guess, length_scale)
+            best = int(alike[int(np.argmin(near))])
+        mine = [i for i, m in enumerate(pool) if m is local]
+        if mine and pose_distance(local.pose, pool[best].pose, length_scale)[0] <= separation:
+            # The fit tells solutions apart, not millimetres within one: when the match
+            # from the prediction converged to the chosen solution, it stands.
+            best = mine[0]
+        chosen = pool[best]
+        chosen.extra['surface_fit'] = float(fits[best])
+        chosen.extra['surface_overlap'] = float(overlaps[best])
+        alternatives: list[tuple[np.ndarray, float]] = []
+        for match, fit in zip(pool, fits):
+            ratio = float(fit / fits[best]) if fits[best] > 0.0 else 0.0
+            distinct = all(pose_distance(match.pose, other, length_scale)[0] > separation
+                           for other in [chosen.pose] + [pose for pose, _ in alternatives])
+            if distinct and ratio >= ambiguity:
+                alternatives.append((match.pose.copy(), ratio))
+        return Registration(chosen, trigger, failure, search=result,
+                            alternatives=alternatives, candidates=len(candidates))
