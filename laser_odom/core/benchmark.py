@@ -8,23 +8,32 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 import math
+import time
 from typing import Callable
 
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.config import (
+    GlobalSearchConfig, MountingConfig, PipelineConfig, ScanConfig)
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
 from laser_odom.core.metrics import evaluate
 from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.priors import PriorConfig, PriorFeed
 from laser_odom.core.runner import run_pipeline
+from laser_odom.core.search import correlative_search
 from laser_odom.core.simulation import LaserModel, simulate
 from laser_odom.core.trajectory import Dataset, Trajectory
+from laser_odom.core.validation import ScanValidator
 
-BENCH_PRIORS = {'zero': 'none', 'constant_velocity': 'constant_velocity', 'odom': 'odom'}
-"""Benchmark prior names -> the pipeline's ``prior`` parameter."""
+BENCH_PRIORS = {'none': 'none', 'constant_velocity': 'constant_velocity', 'odom': 'odom',
+                'zero': 'none'}
+"""Benchmark prior names -> the pipeline's ``prior`` parameter (``zero`` is the earlier
+name of ``none``, still accepted)."""
+
+DEFAULT_BENCH_PRIORS = ('none', 'constant_velocity', 'odom')
+"""The priors a benchmark run scores unless told otherwise."""
 
 WHEEL_ODOMETRY = 'wheel_odometry'
 """Pseudo-matcher name of the row that scores raw wheel odometry alone."""
@@ -35,18 +44,22 @@ WARMUP_SCANS = 10
 
 @dataclass(frozen=True)
 class SimulatedSpec:
-    """A simulated benchmark dataset: world, beam count, field of view, duration."""
+    """A simulated benchmark dataset: world, beams, field of view, duration, motion."""
 
     world: str
     beams: int
     fov_deg: float
     duration: float = 60.0
     seed: int = 1
+    motion: str = 'gentle'
+    drop: float = 0.0
+    """Share of the scans dropped."""
 
     def generate(self, name: str) -> Dataset:
         """Simulate the dataset (deterministic for the spec)."""
         laser = LaserModel(beams=self.beams, fov=math.radians(self.fov_deg))
-        dataset = simulate(self.world, duration=self.duration, laser=laser, seed=self.seed)
+        dataset = simulate(self.world, duration=self.duration, laser=laser, seed=self.seed,
+                           motion=self.motion, drop=self.drop)
         dataset.name = name
         return dataset
 
@@ -57,8 +70,14 @@ SIMULATED = {
     'sim-cluttered-360': SimulatedSpec('cluttered', 360, 360.0),
     'sim-office-1081': SimulatedSpec('office', 1081, 270.0),
     'sim-cluttered-1081': SimulatedSpec('cluttered', 1081, 270.0),
+    'sim-gentle-drop20': SimulatedSpec('office', 360, 360.0, drop=0.2),
+    'sim-spin-drop20': SimulatedSpec('office', 360, 360.0, motion='spin', drop=0.2),
+    'sim-aggressive-drop20': SimulatedSpec('office', 360, 360.0, motion='aggressive',
+                                           drop=0.2),
 }
-"""Simulated datasets of the benchmark: corridor-heavy and cluttered, 360 and 1081 beams."""
+"""Simulated datasets of the benchmark: corridor-heavy and cluttered, 360 and 1081 beams;
+and the office at 10 Hz with a fifth of the scans dropped, driven gently, spinning in
+place (3 rad/s) and aggressively (1.5 m/s)."""
 
 
 @dataclass
@@ -134,3 +153,65 @@ def wheel_odometry_row(dataset: Dataset) -> BenchRow:
     """Score raw wheel odometry alone: the do-nothing baseline for every matcher."""
     return _row(dataset, WHEEL_ODOMETRY, 'odom', wheel_odometry_trajectory(dataset),
                 np.zeros(0), 0)
+
+
+SEARCH_PAIRS = 50
+"""Scan pairs, spread over a dataset, on which the global search alone is timed."""
+
+
+@dataclass
+class SearchTimingRow:
+    """The global search alone on one dataset: time per search and where it goes."""
+
+    dataset: str
+    beams: int
+    searches: int
+    median_ms: float
+    p95_ms: float
+    grid_ms: float
+    tree_ms: float
+    nodes: int
+    exhaustive: float
+
+    def as_dict(self) -> dict:
+        """Return the row as a JSON-friendly dict."""
+        return asdict(self)
+
+
+def search_timing(dataset: Dataset, config: GlobalSearchConfig | None = None,
+                  pairs: int = SEARCH_PAIRS) -> SearchTimingRow:
+    """Time the global search over its window on pairs of consecutive scans.
+
+    The guess is zero motion, as with ``prior: none``; one search warms up first.
+    Medians of the whole search, of rasterising and bounding the reference (grid) and
+    of scoring the tree, the median count of scored nodes and the share of searches
+    that were exhaustive.
+    """
+    config = config if config is not None else GlobalSearchConfig()
+    window = config.window()
+    validator = ScanValidator(ScanConfig(), MountingConfig(), EventLog(lambda message: None))
+    starts = np.unique(np.linspace(0, max(len(dataset.scans) - 2, 0), pairs + 1).astype(int))
+    results, times = [], []
+    for index in starts:
+        reference, _ = validator.check(dataset.scans[index])
+        current, _ = validator.check(dataset.scans[index + 1])
+        if reference is None or current is None:
+            continue
+        started = time.perf_counter()
+        result = correlative_search(reference, current, se2.pose(), window,
+                                    config.global_search_candidates)
+        if result is not None:
+            times.append(time.perf_counter() - started)
+            results.append(result)
+    times, results = times[1:], results[1:]
+    beams = len(dataset.scans[0].ranges) if dataset.scans else 0
+    if not results:
+        nan = float('nan')
+        return SearchTimingRow(dataset.name, beams, 0, nan, nan, nan, nan, 0, nan)
+    return SearchTimingRow(
+        dataset.name, beams, len(results), float(np.median(times) * 1e3),
+        float(np.percentile(times, 95) * 1e3),
+        float(np.median([r.grid_seconds for r in results]) * 1e3),
+        float(np.median([r.tree_seconds for r in results]) * 1e3),
+        int(np.median([r.nodes for r in results])),
+        float(np.mean([r.exhaustive for r in results])))

@@ -88,3 +88,14 @@ class Dataset:
     scans: list[LaserScan]
     odometry: Trajectory = field(default_factory=Trajectory)
     reference: Trajectory = field(default_factory=Trajectory)
+
+    def every(self, k: int, name: str | None = None) -> 'Dataset':
+        """Return every ``k``-th scan (from the first), with the same odometry and reference.
+
+        Large motion between scans from a full-rate log: as if the sensor were k times
+        slower, or the odometry fell behind and skipped scans.
+        """
+        if k < 1:
+            raise ValueError('k must be at least 1')
+        return Dataset(name or f'{self.name}/{k}', self.scans[::k], self.odometry,
+                       self.reference)

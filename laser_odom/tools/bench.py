@@ -9,7 +9,9 @@ after a warm-up.
 from __future__ import annotations
 
 import argparse
+from functools import lru_cache
 import json
+import math
 import os
 from pathlib import Path
 import platform
@@ -20,8 +22,11 @@ from typing import Callable, Sequence
 import numpy as np
 
 from laser_odom.core.benchmark import (
-    BENCH_PRIORS, benchmark_run, BenchRow, SIMULATED, wheel_odometry_row)
-from laser_odom.core.datasets import DatasetError, discover_datasets, load_dataset
+    BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, search_timing,
+    SearchTimingRow, SIMULATED, wheel_odometry_row)
+from laser_odom.core.config import GlobalSearchConfig
+from laser_odom.core.datasets import (
+    DatasetError, discover_datasets, load_dataset, subsampled_datasets)
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.trajectory import Dataset
 
@@ -110,12 +115,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument('--datasets', default=None,
                         help='comma-separated dataset names (default: all simulated and '
                              'every real dataset found)')
-    parser.add_argument('--priors', default=','.join(BENCH_PRIORS),
-                        help='comma-separated priors: zero, constant_velocity, odom')
+    parser.add_argument('--priors', default=','.join(DEFAULT_BENCH_PRIORS),
+                        help='comma-separated priors: none, constant_velocity, odom '
+                             '(default: all three)')
     parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA_DIR,
                         help='folder holding the real logs (default: ../shared/data)')
     parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument('--no-search-table', action='store_true',
+                        help='leave out the table that times the global search alone')
     live = parser.add_argument_group(
         'live', 'stream simulated scans over DDS to a laser_odom_node per matcher')
     live.add_argument('--live', action='store_true',
@@ -138,23 +146,31 @@ def _split(text: str, valid: Sequence[str], what: str) -> list[str]:
 
 
 def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
-    """Return name -> loader for every simulated and every real dataset found."""
+    """Return name -> loader for every simulated and every real dataset found.
+
+    Subsampled datasets (``fr079/5``) share one load of their base log.
+    """
     loaders: dict[str, Callable[[], Dataset]] = {
         name: (lambda name=name, spec=spec: spec.generate(name))
         for name, spec in SIMULATED.items()}
     if data_dir.is_dir():
-        for name, path in discover_datasets(data_dir).items():
-            loaders[name] = lambda path=path, name=name: load_dataset(path, name=name)
+        found = discover_datasets(data_dir)
+        for name, path in found.items():
+            loaders[name] = lru_cache(maxsize=1)(
+                lambda path=path, name=name: load_dataset(path, name=name))
+        for name, (base, k) in subsampled_datasets(found).items():
+            loaders[name] = lambda name=name, base=loaders[base], k=k: base().every(k, name)
     return loaders
 
 
-def run(args: argparse.Namespace) -> list[BenchRow]:
-    """Run every selected dataset x matcher x prior and return the rows."""
+def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
+    """Run every selected dataset x matcher x prior; return the rows and search timings."""
     loaders = dataset_loaders(args.data_dir)
     matchers = _split(args.matchers, matcher_names(), 'matcher')
     priors = _split(args.priors, list(BENCH_PRIORS), 'prior')
     names = _split(args.datasets, list(loaders), 'dataset') if args.datasets else list(loaders)
     rows: list[BenchRow] = []
+    searches: list[SearchTimingRow] = []
     for name in names:
         dataset = loaders[name]()
         has_odometry = len(dataset.odometry) > 0
@@ -167,7 +183,36 @@ def run(args: argparse.Namespace) -> list[BenchRow]:
                 label = f'{name} {matcher} {prior}'
                 bar = None if args.no_progress else ProgressBar(label, len(dataset.scans))
                 rows.append(benchmark_run(dataset, matcher, prior, progress=bar))
-    return rows
+        if not args.no_search_table:
+            searches.append(search_timing(dataset))
+    return rows, searches
+
+
+SEARCH_COLUMNS = [
+    ('dataset', 18, None, 'dataset'), ('beams', 5, None, 'beams'),
+    ('searches', 8, None, 'searches'), ('median_ms', 7, 2, 'med ms'),
+    ('p95_ms', 7, 2, 'p95 ms'), ('grid_ms', 7, 2, 'grid ms'), ('tree_ms', 7, 2, 'tree ms'),
+    ('nodes', 7, None, 'nodes'), ('exhaustive', 10, 2, 'exhaustive'),
+]
+"""Columns of the global-search table: field, width, decimals, title."""
+
+
+def format_search_table(rows: Sequence[SearchTimingRow]) -> str:
+    """Return the global-search timings as a fixed-width table."""
+    window = GlobalSearchConfig()
+    lines = [f'# global search alone, default window +-{window.global_search_linear:g} m, '
+             f'+-{math.degrees(window.global_search_angular):.0f} deg at '
+             f'{window.global_search_resolution:g} m; consecutive scans, zero guess',
+             ' '.join(_cell(title, width, None) if i == 0 else f'{title:>{width}}'
+                      for i, (_, width, _, title) in enumerate(SEARCH_COLUMNS))]
+    for row in rows:
+        values = row.as_dict()
+        lines.append(' '.join(_cell(values[key], width, decimals)
+                              for key, width, decimals, _ in SEARCH_COLUMNS))
+    lines.append('# med/p95 ms: whole search; grid: rasterise and bound the reference; tree: '
+                 'score the branch-and-bound nodes (median count); exhaustive: share of '
+                 'searches below the node cap')
+    return '\n'.join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -176,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.live:
         return main_live(args)
     try:
-        rows = run(args)
+        rows, searches = run(args)
     except (DatasetError, ValueError) as err:
         print(f'laser_odom_bench: error: {err}', file=sys.stderr)
         return 2
@@ -185,9 +230,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     print(machine_line())
     print(format_table(rows))
+    if searches:
+        print(format_search_table(searches))
     if args.json is not None:
         payload = {'machine': machine_line().lstrip('# '),
-                   'rows': [row.as_dict() for row in rows]}
+                   'rows': [row.as_dict() for row in rows],
+                   'search': [row.as_dict() for row in searches]}
         args.json.write_text(json.dumps(payload, indent=2) + '\n')
     return 0
 

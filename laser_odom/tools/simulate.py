@@ -18,7 +18,8 @@ import numpy as np
 
 from laser_odom.core.scan import LaserMounting
 from laser_odom.core.simulation import (
-    DEFAULT_WORLD, LaserModel, ODOMETRY_RATE, OdometryNoise, simulate, world_names)
+    DEFAULT_MOTION, DEFAULT_WORLD, LaserModel, MOTIONS, ODOMETRY_RATE, OdometryNoise, simulate,
+    world_names)
 from laser_odom.io.bag_writer import STORAGES, write_bag
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.tum import write_tum
@@ -52,6 +53,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('out', metavar='OUT', type=Path, help='bag directory to create')
     p.add_argument('--world', default=DEFAULT_WORLD, choices=world_names(),
                    help=f'world to drive (default: {DEFAULT_WORLD})')
+    p.add_argument('--motion', default=DEFAULT_MOTION, choices=MOTIONS,
+                   help='how the robot drives: gentle (0.45 m/s), spin (stops to turn in '
+                   'place at up to 3 rad/s) or aggressive (up to 1.5 m/s, fast '
+                   f'accelerations) (default: {DEFAULT_MOTION})')
+    p.add_argument('--drop', type=_number(float, 0.0, 0.99), default=0.0, metavar='P',
+                   help='probability that a scan is dropped (never the first; its ground '
+                   'truth goes too) (default: 0)')
     p.add_argument('--duration', type=_number(float, 0.0, 1e6, True), default=60.0,
                    metavar='S', help='simulated time [s] (default: 60)')
     p.add_argument('--beams', type=_number(int, 2, 100000, what='integer'),
@@ -114,7 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                        rate=args.rate)
     mounting = LaserMounting(args.laser_x, args.laser_y, args.laser_yaw, args.laser_upside_down)
     data = simulate(args.world, args.duration, laser, args.seed, mounting,
-                    OdometryNoise().scaled(args.odom_noise), args.odom_rate)
+                    OdometryNoise().scaled(args.odom_noise), args.odom_rate,
+                    motion=args.motion, drop=args.drop)
     try:
         write_bag(out, data.scans, odometry={'/ground_truth': data.reference,
                                              '/odom': data.odometry},
@@ -126,8 +135,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     laser_on_base = '' if mounting.is_identity else (
         f', laser at x={mounting.x:g} y={mounting.y:g} yaw={mounting.yaw:g}'
         + (' upside down' if mounting.upside_down else ''))
-    print(f'wrote {out}: {len(data.scans)} scans ({args.world}, {args.duration:g} s, '
-          f'{args.beams} beams{laser_on_base}, {driven:.1f} m driven), '
+    motion = '' if args.motion == DEFAULT_MOTION else f', {args.motion} motion'
+    dropped = f', {args.drop:.0%} dropped' if args.drop > 0.0 else ''
+    print(f'wrote {out}: {len(data.scans)} scans ({args.world}{motion}, {args.duration:g} s, '
+          f'{args.beams} beams{laser_on_base}{dropped}, {driven:.1f} m driven), '
           f'{len(data.odometry)} odometry, ground truth {tum}')
     return 0
 

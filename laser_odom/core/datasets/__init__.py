@@ -1,7 +1,8 @@
 """Dataset importers (ROS-free): CARMEN logs and MATLAB scan files to :class:`Dataset`.
 
 Use :func:`load_dataset` for any file and :func:`discover_datasets` to find the real
-benchmark logs (``mit-csail``, ``fr079``, ``intel``) under a data directory. Loaders
+benchmark logs (``mit-csail``, ``fr079``, ``intel``, ``intel-kf``) under a data
+directory. Loaders
 raise :class:`DatasetError` (a ``ValueError``) with a ``file:line: what is wrong``
 message; malformed lines are skipped and logged on the ``laser_odom.core.datasets``
 logger unless ``strict=True``.
@@ -10,8 +11,10 @@ logger unless ``strict=True``.
 from laser_odom.core.datasets.carmen import load_carmen
 from laser_odom.core.datasets.common import DatasetError
 from laser_odom.core.datasets.loader import (
-    dataset_format, dataset_name, discover_datasets, KNOWN_DATASETS, load_dataset)
+    dataset_format, dataset_name, discover_datasets, KNOWN_DATASETS, load_dataset,
+    SUBSAMPLED_DATASETS, subsampled_datasets)
 from laser_odom.core.datasets.matlab import load_mat
 
-__all__ = ['DatasetError', 'KNOWN_DATASETS', 'dataset_format', 'dataset_name',
-           'discover_datasets', 'load_carmen', 'load_dataset', 'load_mat']
+__all__ = ['DatasetError', 'KNOWN_DATASETS', 'SUBSAMPLED_DATASETS', 'dataset_format',
+           'dataset_name', 'discover_datasets', 'load_carmen', 'load_dataset', 'load_mat',
+           'subsampled_datasets']

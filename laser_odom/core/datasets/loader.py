@@ -5,8 +5,10 @@ The format is chosen from the file name: ``.mat`` is a MATLAB scan file
 CARMEN log (:mod:`~laser_odom.core.datasets.carmen`). A ``reference_keyframes.txt`` beside
 the file is joined as the reference when its ``# columns:`` header says it indexes that
 kind of file (``raw_scan_index`` for CARMEN logs, ``mat_row_index`` for .mat files), so
-``intel/intel-corrected.log.gz`` does not pick up the keyframes meant for
-``intel/scan_intel.mat``; a GMapping-corrected log keeps its own per-scan reference.
+``intel/intel-corrected.log.gz`` (the Intel keyframe log, ``intel-kf``) does not pick
+up the keyframes meant for ``intel/scan_intel.mat``; a GMapping-corrected log keeps its
+own per-scan reference. Subsampled datasets (``fr079/5``: every 5th scan) are derived
+from a loaded one with :meth:`Dataset.every`.
 """
 
 from __future__ import annotations
@@ -25,6 +27,13 @@ KNOWN_DATASETS: dict[str, str] = {
     'mit-csail': 'mit-csail/mit-csail.clf',
     'fr079': 'fr079/freiburg-079-corrected.log.gz',
     'intel': 'intel/scan_intel.mat',
+    'intel-kf': 'intel/intel-corrected.log.gz',
+}
+#: Large-motion datasets: every k-th scan of a known one (``name: (known name, k)``).
+#: fr079's scans then lie 0.5 m / 10 deg (k = 5) or 1 m / 19 deg (k = 10) apart, 1-2 s.
+SUBSAMPLED_DATASETS: dict[str, tuple[str, int]] = {
+    'fr079/5': ('fr079', 5),
+    'fr079/10': ('fr079', 10),
 }
 CARMEN_SUFFIXES = ('.clf', '.log')
 MAT_SUFFIXES = ('.mat',)
@@ -84,6 +93,12 @@ def load_dataset(path: Path | str, name: str | None = None,
         raise DatasetError(f'{keyframes}: no such file')
     loader = load_mat if kind == 'mat' else load_carmen
     return loader(path, name=name or dataset_name(path), keyframes=keyframes, strict=strict)
+
+
+def subsampled_datasets(found: dict[str, Path]) -> dict[str, tuple[str, int]]:
+    """Return the subsampled datasets whose base dataset is among ``found``."""
+    return {name: (base, k) for name, (base, k) in SUBSAMPLED_DATASETS.items()
+            if base in found}
 
 
 def discover_datasets(data_dir: Path | str) -> dict[str, Path]:

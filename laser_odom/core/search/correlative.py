@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+import time
 
 import numpy as np
 
@@ -100,7 +101,9 @@ class SearchResult:
     ``ambiguity`` is the score of the best pose distinct from the peak (farther than
     ``separation`` metres, rotation measured as the arc at the points' RMS range)
     divided by the peak's score; 0 when no pose outside the peak scores at least
-    ``keep_ratio`` of it. ``nodes`` counts the scored tree nodes.
+    ``keep_ratio`` of it. ``nodes`` counts the scored tree nodes; ``grid_seconds`` and
+    ``tree_seconds`` say where the time went (rasterising and bounding the reference,
+    scoring the tree).
     """
 
     peaks: list[SearchPeak]
@@ -111,6 +114,8 @@ class SearchResult:
     points: int
     exhaustive: bool = True
     alternatives: list[SearchPeak] = field(default_factory=list)
+    grid_seconds: float = 0.0
+    tree_seconds: float = 0.0
 
     @property
     def best(self) -> SearchPeak:
@@ -267,6 +272,38 @@ that score almost as well as the peak - the candidates a matcher may prefer afte
 refining, and the evidence of ambiguity - are found too."""
 
 
+def _branch_and_bound(tree: _Tree, keep_ratio: float) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Return the leaves scoring at least ``keep_ratio`` of the best, and their scores.
+
+    Also whether the search was exhaustive (no level exceeded ``MAX_NODES``). Breadth
+    first, one batch per level: nodes bounded below ``keep_ratio`` times the
+    best exact score found so far are pruned, the rest split. Greedy dives from the
+    best-bounded nodes of each level find a high exact score early.
+    """
+    nodes = tree.top_nodes()
+    best = 0
+    exhaustive = True
+    values = np.zeros(0, dtype=np.int64)
+    for level in range(tree.depth, -1, -1):
+        values = tree.scores(level, nodes)
+        if level == 0:
+            best = max(best, int(values.max(initial=0)))
+        else:
+            for index in np.argsort(values)[::-1][:DIVES]:
+                best = max(best, tree.dive(level, nodes[index]))
+        keep = values >= keep_ratio * best
+        nodes, values = nodes[keep], values[keep]
+        if len(nodes) > MAX_NODES:
+            exhaustive = False
+            top = np.argsort(values)[::-1][:MAX_NODES]
+            nodes, values = nodes[top], values[top]
+        if level > 0:
+            nodes = tree.children(level, nodes)
+    if best <= 0:
+        return nodes[:0], values[:0], exhaustive
+    return nodes, values, exhaustive
+
+
 def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
                        window: SearchWindow, candidates: int = 3,
                        keep_ratio: float = KEEP_RATIO) -> SearchResult | None:
@@ -287,34 +324,17 @@ def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Po
     theta0 = float(guess[2]) - half_angles * angle_step
     translation_low = np.rint(np.asarray(guess[:2]) / resolution).astype(np.int64) \
         - half_translations
+    started = time.perf_counter()
     tree = _Tree(points, theta0, angle_step, angles, translation_low, translations,
                  resolution)
     tree.grid = _grid_for(reference, window, tree)
-    full_score = LIKELIHOOD_STEPS * len(points)
-
-    nodes = tree.top_nodes()
-    best = 0
-    exhaustive = True
-    for level in range(tree.depth, -1, -1):
-        values = tree.scores(level, nodes)
-        if level == 0:
-            best = max(best, int(values.max(initial=0)))
-        else:
-            for index in np.argsort(values)[::-1][:DIVES]:
-                best = max(best, tree.dive(level, nodes[index]))
-        keep = values >= keep_ratio * best
-        nodes, values = nodes[keep], values[keep]
-        if len(nodes) > MAX_NODES:
-            exhaustive = False
-            top = np.argsort(values)[::-1][:MAX_NODES]
-            nodes, values = nodes[top], values[top]
-        if level > 0:
-            nodes = tree.children(level, nodes)
-    if len(nodes) == 0 or best <= 0:
+    gridded = time.perf_counter()
+    leaves, values, exhaustive = _branch_and_bound(tree, keep_ratio)
+    if len(leaves) == 0:
         return None
 
     order = np.argsort(values, kind='stable')[::-1]
-    leaves, scores = nodes[order], values[order] / full_score
+    leaves, scores = leaves[order], values[order] / (LIKELIHOOD_STEPS * len(points))
     poses = np.column_stack((
         (translation_low[0] + leaves[:, 1]) * resolution,
         (translation_low[1] + leaves[:, 2]) * resolution,
@@ -326,7 +346,8 @@ def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Po
     return SearchResult(peaks=peaks[:max(candidates, 1)], ambiguity=float(ambiguity),
                         separation=separation, length_scale=length_scale,
                         nodes=tree.scored, points=len(points), exhaustive=exhaustive,
-                        alternatives=peaks[1:])
+                        alternatives=peaks[1:], grid_seconds=gridded - started,
+                        tree_seconds=time.perf_counter() - gridded)
 
 
 def pose_distance(a: np.ndarray, b: np.ndarray, length_scale: float) -> np.ndarray:

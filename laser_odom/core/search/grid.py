@@ -44,7 +44,7 @@ class LikelihoodGrid:
         self.resolution = float(resolution)
         self.sigma = float(sigma)
         self.low = np.asarray(low, dtype=np.int64)
-        self.windows = sorted(set(int(w) for w in windows) | {1})
+        self.windows = sorted({int(w) for w in windows} | {1})
         pad = self.windows[-1]
         self.shape = (int(shape[0]) + pad, int(shape[1]) + pad)
         self.cells = self.shape[0] * self.shape[1]

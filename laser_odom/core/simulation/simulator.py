@@ -1,8 +1,8 @@
 """Deterministic simulation of a robot driving a world: scans, ground truth, wheel odometry.
 
 One seed fixes everything: it is split (``numpy.random.SeedSequence.spawn``) into
-independent streams for the laser noise and for the odometry noise, so changing the
-odometry model does not change the scans and vice versa.
+independent streams for the laser noise, the odometry noise and the dropped scans, so
+changing one of them does not change the others.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import numpy as np
 
 from laser_odom.core.scan import LaserMounting
 from laser_odom.core.simulation.laser import LaserModel, render_scan
+from laser_odom.core.simulation.motions import DEFAULT_MOTION, motion_profile
 from laser_odom.core.simulation.odometry import OdometryNoise, wheel_odometry
 from laser_odom.core.simulation.world import DEFAULT_WORLD, get_world, World
 from laser_odom.core.trajectory import Dataset, Trajectory
@@ -34,7 +35,8 @@ def simulate(world: str | World = DEFAULT_WORLD, duration: float = 60.0,
              laser: LaserModel = LaserModel(), seed: int = 0,
              mounting: LaserMounting | None = None,
              odometry_noise: OdometryNoise = OdometryNoise(),
-             odometry_rate: float = ODOMETRY_RATE, start_ns: int = EPOCH_NS) -> Dataset:
+             odometry_rate: float = ODOMETRY_RATE, start_ns: int = EPOCH_NS,
+             motion: str = DEFAULT_MOTION, drop: float = 0.0) -> Dataset:
     """Simulate ``duration`` seconds of the robot driving ``world``'s path.
 
     Returns a :class:`Dataset` whose ``scans`` come at ``laser.rate`` from ``start_ns``,
@@ -42,21 +44,31 @@ def simulate(world: str | World = DEFAULT_WORLD, duration: float = 60.0,
     which is also the frame of the start pose) and whose ``odometry`` is noisy wheel
     odometry at ``odometry_rate`` covering every scan stamp. The scans are rendered
     from the laser's pose ``base * mounting`` (default: laser frame = base frame).
+    ``motion`` names how the robot drives (:mod:`.motions`); each scan but the first
+    is lost with probability ``drop`` (a driver or a link dropping scans), and so is
+    its reference pose.
     """
     if duration <= 0.0 or odometry_rate <= 0.0:
         raise ValueError('duration and odometry rate must be positive')
+    if not 0.0 <= drop < 1.0:
+        raise ValueError('the share of dropped scans must be in [0, 1)')
     w = get_world(world) if isinstance(world, str) else world
-    laser_seed, odom_seed = np.random.SeedSequence(seed).spawn(2)
+    path = motion_profile(w, motion)
+    laser_seed, odom_seed, drop_seed = np.random.SeedSequence(seed).spawn(3)
     laser_rng = np.random.default_rng(laser_seed)
     scan_stamps = sample_stamps(duration, laser.rate, start_ns)
-    truth = w.path.poses_at((scan_stamps - start_ns) * 1e-9)
+    truth = path.poses_at((scan_stamps - start_ns) * 1e-9)
     scans = [render_scan(w, truth[i], laser, laser_rng, int(scan_stamps[i]), mounting)
              for i in range(len(scan_stamps))]
     last = (scan_stamps[-1] - start_ns) * 1e-9
     odom_count = int(math.ceil(last * odometry_rate - 1e-9)) + 1
     odom_stamps = start_ns + np.round(np.arange(odom_count) * (1e9 / odometry_rate)).astype(
         np.int64)
-    odom_truth = Trajectory(odom_stamps, w.path.poses_at((odom_stamps - start_ns) * 1e-9))
+    odom_truth = Trajectory(odom_stamps, path.poses_at((odom_stamps - start_ns) * 1e-9))
     odometry = wheel_odometry(odom_truth, odometry_noise, np.random.default_rng(odom_seed))
-    return Dataset(name=f'sim-{w.name}-seed{seed}', scans=scans, odometry=odometry,
-                   reference=Trajectory(scan_stamps, truth))
+    kept = np.random.default_rng(drop_seed).random(len(scans)) >= drop
+    kept[0] = True
+    suffix = '' if motion == DEFAULT_MOTION else f'-{motion}'
+    return Dataset(name=f'sim-{w.name}{suffix}-seed{seed}',
+                   scans=[scan for scan, keep in zip(scans, kept) if keep],
+                   odometry=odometry, reference=Trajectory(scan_stamps[kept], truth[kept]))
