@@ -23,7 +23,7 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py package.xml
 venv: $(STAMP)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q test
+	$(BIN)/python -m pytest -q -n 2 --dist load test
 
 lint: $(STAMP)
 	$(BIN)/python -m flake8 laser_odom test setup.py

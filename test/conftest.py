@@ -1,8 +1,13 @@
-"""Shared pytest fixtures: where the real robot logs live (../shared/data)."""
+"""Shared pytest fixtures: where the real robot logs live (../shared/data), loaded once."""
 
 from pathlib import Path
+from typing import Callable
 
 import pytest
+
+from laser_odom.core.datasets import (
+    discover_datasets, load_dataset, subsampled_datasets)
+from laser_odom.core.trajectory import Dataset
 
 #: The real logs sit beside the repository, never inside it (see shared/data/README.md).
 SHARED_DATA_DIR = Path(__file__).resolve().parents[1].parent / 'shared' / 'data'
@@ -14,3 +19,26 @@ def shared_data_dir() -> Path:
     if not SHARED_DATA_DIR.is_dir():
         pytest.skip(f'real robot logs not available ({SHARED_DATA_DIR} does not exist)')
     return SHARED_DATA_DIR
+
+
+@pytest.fixture(scope='session')
+def real_log(shared_data_dir) -> Callable[[str], Dataset]:
+    """Return a loader of the real logs by benchmark name (``fr079/5`` too), each loaded once.
+
+    A log missing under ../shared/data skips the test that asks for it.
+    """
+    found = discover_datasets(shared_data_dir)
+    subsampled = subsampled_datasets(found)
+    cache: dict[str, Dataset] = {}
+
+    def load(name: str) -> Dataset:
+        if name not in cache:
+            if name in subsampled:
+                base, k = subsampled[name]
+                cache[name] = load(base).every(k, name)
+            elif name in found:
+                cache[name] = load_dataset(found[name], name=name)
+            else:
+                pytest.skip(f'real log {name} not found under {shared_data_dir}')
+        return cache[name]
+    return load

@@ -49,11 +49,18 @@ TEST_WORLD = World(
 
 
 def unique_domain_id() -> int:
-    """Return a ROS domain id in 1..200 unlikely to be used by a concurrent test run."""
+    """Return a ROS domain id in 1..200 unlikely to be used by a concurrent test run.
+
+    Under pytest-xdist each worker draws from its own share of the range, so the
+    workers of one run never meet.
+    """
     taken = os.environ.get('ROS_DOMAIN_ID')
+    workers = max(int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1')), 1)
+    worker = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0').lstrip('gw') or 0) % workers
+    share = 200 // workers
     rng = random.Random(os.getpid() * 7919 + time.time_ns())
     while True:
-        domain = rng.randint(1, 200)
+        domain = 1 + worker * share + rng.randrange(share)
         if str(domain) != taken:
             return domain
 

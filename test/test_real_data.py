@@ -9,7 +9,6 @@ intel 0.052 m / 0.40 deg / 3.2 m / 7. Skipped when ../shared/data is absent.
 import pytest
 
 from laser_odom.core.benchmark import benchmark_run
-from laser_odom.core.datasets import discover_datasets, load_dataset
 
 CSM_BAR = {
     'fr079': (0.025, 0.50, 2.1, 1),
@@ -18,21 +17,12 @@ CSM_BAR = {
 }
 
 
-@pytest.fixture(scope='module')
-def datasets(shared_data_dir):
-    found = discover_datasets(shared_data_dir)
-    missing = set(CSM_BAR) - set(found)
-    if missing:
-        pytest.skip(f'real logs missing under {shared_data_dir}: {sorted(missing)}')
-    return {name: load_dataset(found[name], name=name) for name in CSM_BAR}
-
-
 CASES = [(m, d) for m in ('plicp', 'nicp', 'imls') for d in sorted(CSM_BAR)]
 
 
 @pytest.mark.parametrize('matcher, dataset', CASES)
-def test_matcher_meets_the_csm_bar(datasets, matcher, dataset):
-    row = benchmark_run(datasets[dataset], matcher, 'constant_velocity')
+def test_matcher_meets_the_csm_bar(real_log, matcher, dataset):
+    row = benchmark_run(real_log(dataset), matcher, 'constant_velocity')
     trans, rot, ate, failed = CSM_BAR[dataset]
     figures = (f'{matcher} on {dataset}: RPE {row.rpe_trans_mean:.4f} m / '
                f'{row.rpe_rot_mean:.3f} deg, ATE {row.ate:.3f} m, failed {row.failed}')

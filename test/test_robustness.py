@@ -81,8 +81,11 @@ def assert_finite(estimate) -> None:
         assert np.all(np.isfinite(value))
 
 
-@pytest.mark.parametrize('matcher, count', [('icp', 5000)] + [
-    (name, 1000) for name in matcher_names() if name != 'icp'])
+# Each malformed scan that passes validation is matched, and a failed match runs the
+# global search and refines its best poses: these counts still produce every defect
+# hundreds of times.
+@pytest.mark.parametrize('matcher, count', [('icp', 2500)] + [
+    (name, 600) for name in matcher_names() if name != 'icp'])
 def test_fuzzed_scans_never_escape_or_corrupt(matcher, count):
     rng = np.random.default_rng(sum(map(ord, matcher)))
     said = []

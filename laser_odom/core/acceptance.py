@@ -27,6 +27,7 @@ from laser_odom.core.search import SearchWindow
 if TYPE_CHECKING:  # pragma: no cover - typing only, registration imports this module
     from laser_odom.core.registration import Registration
 
+
 DEGENERATE_VARIANCE = 1.0
 """Variance given to a degenerate direction [m^2 or rad^2]: as uncertain as the prior."""
 
@@ -99,7 +100,7 @@ def searched_inlier_ratio(match: MatchResult) -> float:
 
 
 def describe_rejection(reason: str, match: MatchResult, guess: se2.Pose,
-                       config: PipelineConfig, usual_residual: float | None = None) -> str:
+                       config: PipelineConfig) -> str:
     """Return the reason with the numbers behind it, for the log."""
     acceptance = config.acceptance
     linear, angular = correction_from(guess, match.pose)
@@ -120,9 +121,6 @@ def describe_rejection(reason: str, match: MatchResult, guess: se2.Pose,
         return (f'{linear:.2f} m / {math.degrees(angular):.1f} deg from the prediction, '
                 f'outside the search window +-{window.linear:.2f} m / '
                 f'+-{math.degrees(window.angular):.1f} deg')
-    if reason == 'high_residual' and usual_residual:
-        return (f'residual {match.residual:.3f} m, {match.residual / usual_residual:.1f}x '
-                f'the usual {usual_residual:.3f} m')
     return reason.replace('_', ' ')
 
 

@@ -78,6 +78,11 @@ class AcceptanceConfig:
         3.0, 'A match whose residual exceeds this multiple of the median residual of the '
         'recent accepted matches is checked by the global search (0 = never).',
         0.0, 1000.0)
+    min_relative_inlier_ratio: float = param(
+        0.75, 'A match that pairs less than this fraction of the median inlier ratio of '
+        'the recent accepted matches is checked by the global search (a scan that slid '
+        'along a wall from a wrong prediction fits well, but only in part; 0 = never).',
+        0.0, 1.0)
     rejected_motion: str = param(
         'predict', 'On a rejected match: predict (advance by the prior) or hold (no motion).',
         choices=('predict', 'hold'))
@@ -102,13 +107,13 @@ class GlobalSearchConfig:
     global_search_angular: float = param(
         math.pi / 2, 'Half-width [rad] of the searched window in rotation.', 0.0, math.pi)
     global_search_resolution: float = param(
-        0.1, 'Translation step [m] of the search and cell of its likelihood grid; the '
-        'rotation step moves the farthest point searched by one cell.', 0.01, 1.0)
+        0.1, 'Translation step [m] of the search and cell of its likelihood grid (the '
+        'rotation step moves a point 10 m away by one cell).', 0.01, 1.0)
     global_search_candidates: int = param(
         3, 'The matcher refines up to this many distinct best poses of the search and '
         'keeps the one that fits best.', 1, 20)
     global_search_ambiguity: float = param(
-        0.95, 'A searched match is ambiguous (reported degenerate, with a covariance '
+        0.9, 'A searched match is ambiguous (reported degenerate, with a covariance '
         'that covers the alternatives) when a distinct refined pose fits at least this '
         'fraction as well (a featureless corridor, a symmetric room).', 0.5, 1.0)
 

@@ -29,6 +29,15 @@ from laser_odom.core.validation import REJECTIONS, ScanValidator
 TIMING_WINDOW = 1000
 """Number of recent per-scan processing times kept for statistics."""
 
+OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
+"""Counters of what became of the scans; every other counter is a skip reason, a
+rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
+
+EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
+    f'search_{trigger}' for trigger in SEARCH_TRIGGERS)
+"""Counters of events that do not skip the scan: a missing or dropped prior, a clock
+jump, an ambiguous match, and each reason the global search ran."""
+
 
 @dataclass
 class OdometryEstimate:
@@ -86,7 +95,7 @@ class OdometryPipeline:
     def set_matcher(self, matcher: ScanMatcher) -> None:
         """Switch the matcher; the pose and the reference scan are kept."""
         if matcher.name != self.matcher.name:
-            self.registrar.residuals.clear()
+            self.registrar.usual.clear()
         self.matcher = matcher
         self.config.matcher = matcher.name
         self.config.matcher_config = matcher.config

@@ -2,8 +2,8 @@
 
 A prediction is a guess. When it is trusted (the constant-velocity or wheel-odometry
 step after an accepted match) the matcher starts from it, and its result is checked:
-converged, enough of the scan paired, a residual near the scan's usual level, and a
-correction inside ``max_correction_*``. When the prediction cannot be trusted (the
+converged, enough of the scan paired, a residual and an inlier ratio near their usual
+level, and a correction inside ``max_correction_*``. When the prediction cannot be trusted (the
 first match, a gap longer than ``max_scan_gap``, ``prior: none``, right after a
 rejection), or the local match failed one of those checks, the correlative search
 (:mod:`laser_odom.core.search`) scores the whole window around the prediction and the
@@ -47,33 +47,42 @@ ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always')
 """Triggers that are how the odometry is meant to run: counted, not warned about."""
 
 RESIDUAL_WINDOW = 50
-"""Accepted matches whose residuals make the scan's usual level (their median)."""
+"""Accepted matches whose fit makes the usual level (the medians)."""
 
 MIN_RESIDUAL_SAMPLES = 10
-"""The residual check starts once this many matches were accepted."""
+"""The checks against the usual level start once this many matches were accepted."""
 
 
-class ResidualLevel:
-    """The usual residual of accepted matches: the median of the recent ones."""
+class UsualLevel:
+    """How accepted matches usually fit: medians of recent residuals and inlier ratios."""
 
     def __init__(self) -> None:
         """Start with no history."""
-        self._recent: deque[float] = deque(maxlen=RESIDUAL_WINDOW)
+        self._residuals: deque[float] = deque(maxlen=RESIDUAL_WINDOW)
+        self._inliers: deque[float] = deque(maxlen=RESIDUAL_WINDOW)
 
     def clear(self) -> None:
-        """Forget the history (a new matcher measures residuals differently)."""
-        self._recent.clear()
+        """Forget the history (a new matcher measures its fit differently)."""
+        self._residuals.clear()
+        self._inliers.clear()
 
-    def add(self, residual: float) -> None:
-        """Record the residual of an accepted match."""
-        if math.isfinite(residual):
-            self._recent.append(float(residual))
+    def add(self, match: MatchResult) -> None:
+        """Record how an accepted match fits."""
+        if math.isfinite(match.residual) and math.isfinite(match.inlier_ratio):
+            self._residuals.append(float(match.residual))
+            self._inliers.append(float(match.inlier_ratio))
 
-    def usual(self) -> float | None:
+    def residual(self) -> float | None:
         """Return the median recent residual, None before enough matches."""
-        if len(self._recent) < MIN_RESIDUAL_SAMPLES:
+        if len(self._residuals) < MIN_RESIDUAL_SAMPLES:
             return None
-        return float(np.median(self._recent))
+        return float(np.median(self._residuals))
+
+    def inlier_ratio(self) -> float | None:
+        """Return the median recent inlier ratio, None before enough matches."""
+        if len(self._inliers) < MIN_RESIDUAL_SAMPLES:
+            return None
+        return float(np.median(self._inliers))
 
 
 @dataclass
@@ -145,7 +154,7 @@ class Registrar:
     def __init__(self, events: EventLog) -> None:
         """Create the registrar; matcher errors are reported to ``events``."""
         self.events = events
-        self.residuals = ResidualLevel()
+        self.usual = UsualLevel()
 
     def register(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                  guess: se2.Pose, config: PipelineConfig, untrusted: str) -> Registration:
@@ -157,24 +166,21 @@ class Registrar:
         if mode == 'always' or (mode == 'recover' and untrusted):
             local = self.local_match(matcher, reference, current, guess) \
                 if mode == 'always' else None
-            registration = self._search(matcher, reference, current, guess, config,
-                                        'always' if mode == 'always' else untrusted,
-                                        local, '')
-            registration.trusted = not untrusted
-            return registration
+            return self._search(matcher, reference, current, guess, config,
+                                'always' if mode == 'always' else untrusted, local, '',
+                                trusted=not untrusted)
         local = self.local_match(matcher, reference, current, guess)
         failure = self.local_failure(local, guess, config)
         if failure and mode == 'recover':
             registration = self._search(matcher, reference, current, guess, config,
-                                        'local_failed', local, failure)
-            registration.failure_detail = describe_rejection(
-                failure, local, guess, config, self.residuals.usual())
+                                        'local_failed', local, failure, trusted=True)
+            registration.failure_detail = self.describe_failure(failure, local, guess, config)
             return registration
         return Registration(local, local_failure=failure)
 
     def accepted(self, match: MatchResult) -> None:
-        """Record an accepted match: its residual joins the scan's usual level."""
-        self.residuals.add(match.residual)
+        """Record an accepted match: its fit joins the scans' usual level."""
+        self.usual.add(match)
 
     def local_failure(self, match: MatchResult, guess: se2.Pose,
                       config: PipelineConfig) -> str:
@@ -182,11 +188,27 @@ class Registrar:
         reason = rejection_reason(match, guess, config.acceptance)
         if reason is not None:
             return reason
-        usual = self.residuals.usual()
-        ratio = config.acceptance.max_residual_ratio
-        if usual is not None and ratio > 0.0 and match.residual > ratio * usual:
+        acceptance = config.acceptance
+        residual, inliers = self.usual.residual(), self.usual.inlier_ratio()
+        if (residual is not None and acceptance.max_residual_ratio > 0.0
+                and match.residual > acceptance.max_residual_ratio * residual):
             return 'high_residual'
+        if (inliers is not None
+                and match.inlier_ratio < acceptance.min_relative_inlier_ratio * inliers):
+            return 'few_inliers'
         return ''
+
+    def describe_failure(self, reason: str, match: MatchResult, guess: se2.Pose,
+                         config: PipelineConfig) -> str:
+        """Return why the local match failed, with the numbers behind it."""
+        residual, inliers = self.usual.residual(), self.usual.inlier_ratio()
+        if reason == 'high_residual' and residual:
+            return (f'residual {match.residual:.3f} m, {match.residual / residual:.1f}x the '
+                    f'usual {residual:.3f} m')
+        if reason == 'few_inliers' and inliers:
+            return (f'{match.inlier_ratio:.0%} of the points paired against the usual '
+                    f'{inliers:.0%}')
+        return describe_rejection(reason, match, guess, config)
 
     def local_match(self, matcher: ScanMatcher, reference: ScanPoints,
                     current: ScanPoints, guess: se2.Pose) -> MatchResult:
@@ -210,7 +232,7 @@ class Registrar:
 
     def _search(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                 guess: se2.Pose, config: PipelineConfig, trigger: str,
-                local: MatchResult | None, failure: str) -> Registration:
+                local: MatchResult | None, failure: str, trusted: bool) -> Registration:
         """Search the window, refine the best poses, keep the candidate that fits best."""
         search_config = config.search
         window = search_config.window()
@@ -222,41 +244,54 @@ class Registrar:
         if local is not None:
             candidates.append(local)
         converged = [m for m in candidates if m.converged and se2.is_finite_pose(m.pose)]
+        registration = Registration(local if local is not None else MatchResult.failure(
+            guess, reason='search found nothing' if result is None else ''), trigger, failure,
+            search=result, candidates=len(candidates), trusted=trusted)
         if not converged:
-            fallback = local if local is not None else MatchResult.failure(
-                guess, reason='search found nothing' if result is None else '')
-            return Registration(fallback, trigger, failure, search=result,
-                                candidates=len(candidates))
-        acceptable = [m for m in converged if searched_rejection_reason(
-            m, guess, config.acceptance, window) is None]
-        pool = acceptable or converged
+            return registration
+        # Candidates inside the window first: the window is the gate they are judged by.
+        pool = [m for m in converged if searched_rejection_reason(
+            m, guess, config.acceptance, window) is None] or converged
         points = search_points(current, window.resolution)
         fits, overlaps = np.array([surface_fit(reference, points, m.pose,
                                                window.kernel_sigma) for m in pool]).T
-        length_scale = result.length_scale if result is not None else current.length_scale
+        scale = result.length_scale if result is not None else current.length_scale
         separation = result.separation if result is not None else 3.0 * window.resolution
         ambiguity = search_config.global_search_ambiguity
         best = int(np.argmax(fits))
-        if trigger in ('local_failed', 'always'):
-            # The prediction was trusted: among poses the scans cannot tell apart, the
-            # one nearest the prediction is the best guess.
+        if trusted:
+            # Among poses the scans cannot tell apart, the one nearest a trusted
+            # prediction is the best guess.
             alike = np.flatnonzero(fits >= ambiguity * fits[best])
-            near = pose_distance(np.array([pool[i].pose for i in alike]), guess, length_scale)
+            near = pose_distance(np.array([pool[i].pose for i in alike]), guess, scale)
             best = int(alike[int(np.argmin(near))])
-        mine = [i for i, m in enumerate(pool) if m is local]
-        if mine and pose_distance(local.pose, pool[best].pose, length_scale)[0] <= separation:
+        if local is not None and any(m is local for m in pool) and \
+                pose_distance(local.pose, pool[best].pose, scale)[0] <= separation:
             # The fit tells solutions apart, not millimetres within one: when the match
             # from the prediction converged to the chosen solution, it stands.
-            best = mine[0]
+            best = next(i for i, m in enumerate(pool) if m is local)
         chosen = pool[best]
         chosen.extra['surface_fit'] = float(fits[best])
         chosen.extra['surface_overlap'] = float(overlaps[best])
-        alternatives: list[tuple[np.ndarray, float]] = []
-        for match, fit in zip(pool, fits):
-            ratio = float(fit / fits[best]) if fits[best] > 0.0 else 0.0
-            distinct = all(pose_distance(match.pose, other, length_scale)[0] > separation
-                           for other in [chosen.pose] + [pose for pose, _ in alternatives])
-            if distinct and ratio >= ambiguity:
-                alternatives.append((match.pose.copy(), ratio))
-        return Registration(chosen, trigger, failure, search=result,
-                            alternatives=alternatives, candidates=len(candidates))
+        registration.match = chosen
+        registration.alternatives = distinct_alternatives(
+            pool, fits / max(float(fits[best]), 1e-12), chosen.pose, scale, separation,
+            ambiguity)
+        return registration
+
+
+def distinct_alternatives(candidates: list[MatchResult], fit_ratios: np.ndarray,
+                          chosen: se2.Pose, length_scale: float, separation: float,
+                          ambiguity: float) -> list[tuple[np.ndarray, float]]:
+    """Return the candidates that fit at least ``ambiguity`` as well as the chosen pose.
+
+    Only those farther than ``separation`` from the chosen pose and from each other
+    (rotation measured as the arc at ``length_scale``) count, with their fit ratio.
+    """
+    alternatives: list[tuple[np.ndarray, float]] = []
+    for match, ratio in zip(candidates, fit_ratios):
+        distinct = all(pose_distance(match.pose, other, length_scale)[0] > separation
+                       for other in [chosen] + [pose for pose, _ in alternatives])
+        if distinct and ratio >= ambiguity:
+            alternatives.append((match.pose.copy(), float(ratio)))
+    return alternatives

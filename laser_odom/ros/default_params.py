@@ -47,6 +47,7 @@ SECTIONS = {
     'mounting': 'Laser mounting on the base (base_frame <- laser frame)',
     'motion': 'Motion prior: the initial guess of each match',
     'acceptance': 'Match acceptance and degeneracy',
+    'search': 'Global search: matching without a trusted prediction',
     'keyframes': 'Keyframes',
 }
 

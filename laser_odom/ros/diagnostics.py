@@ -16,13 +16,9 @@ from typing import Iterable
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
 
+from laser_odom.core.pipeline import EVENTS, OUTCOMES
 from laser_odom.ros.parameters import NodeConfig
 
-OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
-"""Counters that are outcomes, not skip reasons."""
-
-EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back')
-"""Counters of events that do not skip the scan."""
 
 REJECTED_PREFIX = 'rejected_'
 """Prefix of the per-reason rejection counters the node keeps."""

@@ -24,11 +24,13 @@ import numpy as np
 from laser_odom.core.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, search_timing,
     SearchTimingRow, SIMULATED, wheel_odometry_row)
-from laser_odom.core.config import GlobalSearchConfig
+from laser_odom.core.config import GlobalSearchConfig, pipeline_config_from_params
 from laser_odom.core.datasets import (
     DatasetError, discover_datasets, load_dataset, subsampled_datasets)
 from laser_odom.core.matchers import matcher_names
+from laser_odom.core.params import ParameterError
 from laser_odom.core.trajectory import Dataset
+from laser_odom.io.params_file import load_node_params, ParamsFileError
 
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
 """``../shared/data`` beside a source checkout, the project's real logs."""
@@ -120,6 +122,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              '(default: all three)')
     parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA_DIR,
                         help='folder holding the real logs (default: ../shared/data)')
+    parser.add_argument('--params-file', type=Path, default=None, metavar='YAML',
+                        help="the node's parameter file: every row runs with its settings "
+                             '(except matcher and prior, which each row sets)')
     parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.add_argument('--no-search-table', action='store_true',
@@ -166,6 +171,7 @@ def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
     """Run every selected dataset x matcher x prior; return the rows and search timings."""
     loaders = dataset_loaders(args.data_dir)
+    values = {} if args.params_file is None else load_node_params(args.params_file)
     matchers = _split(args.matchers, matcher_names(), 'matcher')
     priors = _split(args.priors, list(BENCH_PRIORS), 'prior')
     names = _split(args.datasets, list(loaders), 'dataset') if args.datasets else list(loaders)
@@ -182,7 +188,9 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
                     continue
                 label = f'{name} {matcher} {prior}'
                 bar = None if args.no_progress else ProgressBar(label, len(dataset.scans))
-                rows.append(benchmark_run(dataset, matcher, prior, progress=bar))
+                config = pipeline_config_from_params({**values, 'matcher': matcher})
+                rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
+                                          config=config))
         if not args.no_search_table:
             searches.append(search_timing(dataset))
     return rows, searches
@@ -222,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return main_live(args)
     try:
         rows, searches = run(args)
-    except (DatasetError, ValueError) as err:
+    except (DatasetError, ParamsFileError, ParameterError, ValueError) as err:
         print(f'laser_odom_bench: error: {err}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -11,12 +11,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from laser_odom.core.metrics import distance_travelled, evaluate
+from laser_odom.core.pipeline import OUTCOMES
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_writer import write_bag
 from laser_odom.io.tum import read_tum, TumFormatError, write_tum
-
-OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
-"""Pipeline counters that are outcomes; the other counters are skip reasons and events."""
 
 
 class ReplayError(Exception):

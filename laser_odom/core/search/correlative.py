@@ -3,16 +3,15 @@
 Olson, "Real-time correlative scan matching", ICRA 2009: score every pose of a window
 by how well the current scan's points fall on the reference's likelihood grid
 (:mod:`.grid`) and take the best, so the answer does not depend on a good initial
-guess. Enumerating a window of +-1.5 m and +-90 deg at 0.1 m steps is ~10^6 poses of
-~200 points; instead the poses form a tree (Hess et al., ICRA 2016, Sec. V): a node
-is a block of ``2^l`` rotations by ``2^l x 2^l`` translations, scored against a
-max-filtered grid that bounds every pose in it. Rotation and translation halve
-together, because the angular step is chosen so that the farthest point moves one
-cell per step: a node's rotations then move its points by about as much as its
-translations do. Nodes are expanded breadth first, one vectorised batch per level,
-and pruned when their bound is below ``keep_ratio`` times the best exact score found
-(greedy dives find a good one early). Every pose scoring at least ``keep_ratio``
-times the best therefore survives to the leaves, which yields both the global peak
+guess. Enumerating a window of +-1.5 m and +-90 deg at 0.1 m steps is ~3 x 10^5 poses
+of ~150 points; instead the poses form a tree (:mod:`.tree`; Hess et al., ICRA 2016,
+Sec. V): a node is a block of ``2^l`` rotations by ``2^l x 2^l`` translations, scored
+against max-filtered grids that bound every pose in it, each point against the grid
+its own rotational reach needs. Nodes are expanded breadth first, one vectorised
+batch per level, and pruned when their bound is below ``keep_ratio`` times the best
+exact score found (greedy dives find a good one early). Every pose scoring at least
+``keep_ratio`` times the best therefore survives to the leaves (unless a level
+exceeds ``MAX_NODES``, which the result reports), which yields both the global peak
 and the best *distinct* alternative: how ambiguous the answer is.
 """
 
@@ -27,6 +26,7 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.scan import densify, ScanPoints
 from laser_odom.core.search.grid import LIKELIHOOD_STEPS, LikelihoodGrid
+from laser_odom.core.search.tree import SearchTree
 
 RANGE_PERCENTILE = 95.0
 """Current points beyond this percentile of the ranges are left out of the search: the
@@ -146,115 +146,7 @@ def search_points(current: ScanPoints, resolution: float) -> np.ndarray:
     return points
 
 
-def coarsen(dilation: np.ndarray) -> np.ndarray:
-    """Round dilations up to at most four values per octave (0..8, 10, 12, 14, 16, 20, ...).
-
-    Bounds may only grow, and a few distinct window sizes keep the bound grids few.
-    """
-    dilation = np.asarray(dilation, dtype=np.int64)
-    octave = np.floor(np.log2(np.maximum(dilation, 1))).astype(np.int64)
-    step = np.where(dilation >= 8, 1 << np.maximum(octave - 2, 0), 1)
-    return -(-dilation // step) * step
-
-
-class _Tree:
-    """The search tree over one window: node scoring, children, greedy dives.
-
-    A node ``(j, i, k)`` at level ``l`` holds the leaf rotations ``j .. j + 2^l - 1``
-    and the translations ``(i .. i + 2^l - 1) x (k .. k + 2^l - 1)`` (in cells from
-    ``translation_low``), clipped to the window.
-    """
-
-    def __init__(self, points: np.ndarray, theta0: float, angle_step: float, angles: int,
-                 translation_low: np.ndarray, translations: int, resolution: float) -> None:
-        self.points = points
-        self.ranges = np.hypot(points[:, 0], points[:, 1])
-        self.theta0, self.angle_step, self.angles = theta0, angle_step, angles
-        self.translation_low, self.translations = translation_low, translations
-        self.resolution = resolution
-        self.depth = int(math.ceil(math.log2(translations))) if translations > 1 else 0
-        # A point at range r moves at most r * half_width under a node's rotations, plus
-        # one cell for rounding both positions to cells; none at a leaf's exact angle.
-        self.dilation = [np.zeros(len(points), dtype=np.int64)] + [
-            coarsen(np.ceil(self.ranges * 0.5 * (2 ** level - 1) * angle_step
-                            / resolution).astype(np.int64) + 1)
-            for level in range(1, self.depth + 1)]
-        self.grid: LikelihoodGrid | None = None
-        self._shift: dict[int, np.ndarray] = {}
-        self.scored = 0
-
-    def windows(self) -> set[int]:
-        """Return every lookup window size (cells) the nodes need."""
-        return {2 ** level + 2 * int(m) for level, dilation in enumerate(self.dilation)
-                for m in np.unique(dilation)}
-
-    def max_dilation(self) -> int:
-        """Return the largest dilation (cells) of any point at any level."""
-        return int(max(int(d.max(initial=0)) for d in self.dilation))
-
-    def shift(self, level: int) -> np.ndarray:
-        """Return each point's flat offset to its bound grid's window corner."""
-        shift = self._shift.get(level)
-        if shift is None:
-            grid = self.grid
-            dilation = self.dilation[level]
-            start = np.array([grid.table_start(w) for w in 2 ** level + 2 * dilation],
-                             dtype=np.int64)
-            shift = start - dilation * grid.shape[1] - dilation
-            self._shift[level] = shift
-        return shift
-
-    def top_nodes(self) -> np.ndarray:
-        """Return the nodes of the top level: every angle block, one translation block."""
-        starts = np.arange(0, self.angles, 2 ** self.depth)
-        return np.column_stack((starts, np.zeros_like(starts), np.zeros_like(starts)))
-
-    def scores(self, level: int, nodes: np.ndarray) -> np.ndarray:
-        """Return the bound (level > 0) or exact score (level 0) of nodes ``(j, i, k)``.
-
-        A node's rotations are scored at their middle angle; each point then lies
-        within its dilation of where any of them puts it, so its lookup in the bound
-        grid whose window spans the translation block plus twice the dilation bounds
-        every leaf of the node.
-        """
-        grid = self.grid
-        block = 2 ** level
-        self.scored += len(nodes)
-        starts, rows = np.unique(nodes[:, 0], return_inverse=True)
-        last = np.minimum(starts + block, self.angles) - 1
-        centre = self.theta0 + 0.5 * (starts + last) * self.angle_step
-        c, s = np.cos(centre)[:, None], np.sin(centre)[:, None]
-        px, py = self.points[:, 0][None, :], self.points[:, 1][None, :]
-        cells = np.stack((np.rint((c * px - s * py) / grid.resolution),
-                          np.rint((s * px + c * py) / grid.resolution)),
-                         axis=-1).astype(np.int64)
-        base = grid.flat_index(cells + self.translation_low) + self.shift(level)[None, :]
-        offset = nodes[:, 1] * grid.shape[1] + nodes[:, 2]
-        return grid.tables[base[rows.ravel()] + offset[:, None]].sum(axis=1, dtype=np.int64)
-
-    def children(self, level: int, nodes: np.ndarray) -> np.ndarray:
-        """Return the nodes one level down that split these, inside the window."""
-        half = 2 ** (level - 1)
-        steps = np.array([[a, b, c] for a in (0, half) for b in (0, half) for c in (0, half)])
-        kids = (nodes[:, None, :] + steps[None, :, :]).reshape(-1, 3)
-        inside = ((kids[:, 0] < self.angles) & (kids[:, 1] < self.translations)
-                  & (kids[:, 2] < self.translations))
-        return kids[inside]
-
-    def dive(self, level: int, node: np.ndarray) -> int:
-        """Descend greedily from ``node`` to a leaf; return the leaf's exact score."""
-        node = node[None, :]
-        score = 0
-        while level > 0:
-            kids = self.children(level, node)
-            level -= 1
-            values = self.scores(level, kids)
-            best = int(np.argmax(values))
-            node, score = kids[best:best + 1], int(values[best])
-        return score
-
-
-def _grid_for(reference: ScanPoints, window: SearchWindow, tree: _Tree) -> LikelihoodGrid:
+def _grid_for(reference: ScanPoints, window: SearchWindow, tree: SearchTree) -> LikelihoodGrid:
     """Rasterise the reference over exactly the cells the search can look up."""
     resolution = window.resolution
     margin = int(math.ceil(float(tree.ranges.max()) / resolution)) + 1 + tree.max_dilation()
@@ -272,7 +164,7 @@ that score almost as well as the peak - the candidates a matcher may prefer afte
 refining, and the evidence of ambiguity - are found too."""
 
 
-def _branch_and_bound(tree: _Tree, keep_ratio: float) -> tuple[np.ndarray, np.ndarray, bool]:
+def _branch_and_bound(tree: SearchTree, keep_ratio: float) -> tuple[np.ndarray, np.ndarray, bool]:
     """Return the leaves scoring at least ``keep_ratio`` of the best, and their scores.
 
     Also whether the search was exhaustive (no level exceeded ``MAX_NODES``). Breadth
@@ -304,13 +196,11 @@ def _branch_and_bound(tree: _Tree, keep_ratio: float) -> tuple[np.ndarray, np.nd
     return nodes, values, exhaustive
 
 
-def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
-                       window: SearchWindow, candidates: int = 3,
-                       keep_ratio: float = KEEP_RATIO) -> SearchResult | None:
-    """Find the best poses of ``current`` in ``reference``'s frame within the window.
+def search_tree(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
+                window: SearchWindow) -> SearchTree | None:
+    """Lay out the search of ``window`` around ``guess``: the leaves, the tree, the grid.
 
-    Returns up to ``candidates`` distinct peaks, best first, and the ambiguity of the
-    best; None when either scan has too few points to score.
+    None when either scan has too few points to score.
     """
     resolution = window.resolution
     points = search_points(current, resolution)
@@ -320,32 +210,42 @@ def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Po
     angle_step = resolution / min(max(reach, resolution), ANGLE_STEP_REACH)
     half_angles = int(math.ceil(window.angular / angle_step))
     half_translations = int(math.ceil(window.linear / resolution))
-    angles, translations = 2 * half_angles + 1, 2 * half_translations + 1
     theta0 = float(guess[2]) - half_angles * angle_step
     translation_low = np.rint(np.asarray(guess[:2]) / resolution).astype(np.int64) \
         - half_translations
-    started = time.perf_counter()
-    tree = _Tree(points, theta0, angle_step, angles, translation_low, translations,
-                 resolution)
+    tree = SearchTree(points, theta0, angle_step, 2 * half_angles + 1, translation_low,
+                      2 * half_translations + 1, resolution)
     tree.grid = _grid_for(reference, window, tree)
+    return tree
+
+
+def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
+                       window: SearchWindow, candidates: int = 3,
+                       keep_ratio: float = KEEP_RATIO) -> SearchResult | None:
+    """Find the best poses of ``current`` in ``reference``'s frame within the window.
+
+    Returns up to ``candidates`` distinct peaks, best first, and the ambiguity of the
+    best; None when either scan has too few points to score.
+    """
+    started = time.perf_counter()
+    tree = search_tree(reference, current, guess, window)
+    if tree is None:
+        return None
     gridded = time.perf_counter()
     leaves, values, exhaustive = _branch_and_bound(tree, keep_ratio)
     if len(leaves) == 0:
         return None
 
     order = np.argsort(values, kind='stable')[::-1]
-    leaves, scores = leaves[order], values[order] / (LIKELIHOOD_STEPS * len(points))
-    poses = np.column_stack((
-        (translation_low[0] + leaves[:, 1]) * resolution,
-        (translation_low[1] + leaves[:, 2]) * resolution,
-        se2.wrap_angle(theta0 + leaves[:, 0] * angle_step)))
-    length_scale = float(np.sqrt(np.mean(np.sum(points * points, axis=1))))
-    separation = max(3.0 * resolution, 2.0 * window.kernel_sigma)
+    poses = tree.poses(leaves[order])
+    scores = values[order] / (LIKELIHOOD_STEPS * len(tree.points))
+    length_scale = float(np.sqrt(np.mean(np.sum(tree.points ** 2, axis=1))))
+    separation = max(3.0 * window.resolution, 2.0 * window.kernel_sigma)
     peaks = distinct_peaks(poses, scores, separation, length_scale, max(candidates, 2))
     ambiguity = peaks[1].score / peaks[0].score if len(peaks) > 1 else 0.0
     return SearchResult(peaks=peaks[:max(candidates, 1)], ambiguity=float(ambiguity),
                         separation=separation, length_scale=length_scale,
-                        nodes=tree.scored, points=len(points), exhaustive=exhaustive,
+                        nodes=tree.scored, points=len(tree.points), exhaustive=exhaustive,
                         alternatives=peaks[1:], grid_seconds=gridded - started,
                         tree_seconds=time.perf_counter() - gridded)
 
