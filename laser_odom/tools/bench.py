@@ -36,7 +36,7 @@ DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data
 """``../shared/data`` beside a source checkout, the project's real logs."""
 
 COLUMNS = [
-    ('dataset', 18, None, 'dataset'), ('matcher', 14, None, 'matcher'),
+    ('dataset', 21, None, 'dataset'), ('matcher', 14, None, 'matcher'),
     ('prior', 17, None, 'prior'), ('beams', 5, None, 'beams'), ('steps', 5, None, 'steps'),
     ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
     ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
@@ -73,17 +73,22 @@ def _cell(value: object, width: int, decimals: int | None) -> str:
     return f'{value:>{width}.{decimals}f}'
 
 
-def format_table(rows: Sequence[BenchRow]) -> str:
-    """Return the rows as a fixed-width text table with units in the legend."""
-    lines = [' '.join(_cell(title, width, None) if i < 3 else f'{title:>{width}}'
-                      for i, (_, width, _, title) in enumerate(COLUMNS))]
+def _columns(rows: Sequence, columns: list, text_columns: int) -> list[str]:
+    """Return the header and one line per row (``as_dict``) of a fixed-width table."""
+    lines = [' '.join(_cell(title, width, None) if i < text_columns else f'{title:>{width}}'
+                      for i, (_, width, _, title) in enumerate(columns))]
     for row in rows:
         values = row.as_dict()
         lines.append(' '.join(_cell(values[key], width, decimals)
-                              for key, width, decimals, _ in COLUMNS))
-    lines.append('# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after '
-                 'SE(2) alignment; failed: RPE > 0.5 m or > 10 deg')
-    return '\n'.join(lines)
+                              for key, width, decimals, _ in columns))
+    return lines
+
+
+def format_table(rows: Sequence[BenchRow]) -> str:
+    """Return the rows as a fixed-width text table with units in the legend."""
+    return '\n'.join(_columns(rows, COLUMNS, 3) + [
+        '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
+        'alignment; failed: RPE > 0.5 m or > 10 deg'])
 
 
 class ProgressBar:
@@ -197,7 +202,7 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
 
 
 SEARCH_COLUMNS = [
-    ('dataset', 18, None, 'dataset'), ('beams', 5, None, 'beams'),
+    ('dataset', 21, None, 'dataset'), ('beams', 5, None, 'beams'),
     ('searches', 8, None, 'searches'), ('median_ms', 7, 2, 'med ms'),
     ('p95_ms', 7, 2, 'p95 ms'), ('grid_ms', 7, 2, 'grid ms'), ('tree_ms', 7, 2, 'tree ms'),
     ('nodes', 7, None, 'nodes'), ('exhaustive', 10, 2, 'exhaustive'),
@@ -208,19 +213,14 @@ SEARCH_COLUMNS = [
 def format_search_table(rows: Sequence[SearchTimingRow]) -> str:
     """Return the global-search timings as a fixed-width table."""
     window = GlobalSearchConfig()
-    lines = [f'# global search alone, default window +-{window.global_search_linear:g} m, '
-             f'+-{math.degrees(window.global_search_angular):.0f} deg at '
-             f'{window.global_search_resolution:g} m; consecutive scans, zero guess',
-             ' '.join(_cell(title, width, None) if i == 0 else f'{title:>{width}}'
-                      for i, (_, width, _, title) in enumerate(SEARCH_COLUMNS))]
-    for row in rows:
-        values = row.as_dict()
-        lines.append(' '.join(_cell(values[key], width, decimals)
-                              for key, width, decimals, _ in SEARCH_COLUMNS))
-    lines.append('# med/p95 ms: whole search; grid: rasterise and bound the reference; tree: '
-                 'score the branch-and-bound nodes (median count); exhaustive: share of '
-                 'searches below the node cap')
-    return '\n'.join(lines)
+    return '\n'.join(
+        [f'# global search alone, default window +-{window.global_search_linear:g} m, '
+         f'+-{math.degrees(window.global_search_angular):.0f} deg at '
+         f'{window.global_search_resolution:g} m; consecutive scans, zero guess']
+        + _columns(rows, SEARCH_COLUMNS, 1)
+        + ['# med/p95 ms: whole search; grid: rasterise and bound the reference; tree: '
+           'score the branch-and-bound nodes (median count); exhaustive: share of '
+           'searches below the node cap'])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

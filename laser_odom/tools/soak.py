@@ -17,7 +17,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.config import DEFAULT_MATCHER, PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.pipeline import OdometryPipeline
@@ -59,7 +59,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the soak and print a memory table; exit 1 if memory grew past the limit."""
     parser = argparse.ArgumentParser(prog='laser_odom_soak', description=__doc__.split('\n')[0])
     parser.add_argument('--scans', type=int, default=100_000)
-    parser.add_argument('--matcher', default='icp', choices=matcher_names())
+    parser.add_argument('--matcher', default=DEFAULT_MATCHER, choices=matcher_names())
     parser.add_argument('--world', default='office')
     parser.add_argument('--beams', type=int, default=360)
     parser.add_argument('--report-every', type=int, default=10_000)
