@@ -14,6 +14,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE_NAME]),
         ('share/' + PACKAGE_NAME, ['package.xml']),
         ('share/' + PACKAGE_NAME + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE_NAME + '/launch', glob('launch/*.launch.py')),
+        ('share/' + PACKAGE_NAME + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'rosbags'],
     python_requires='>=3.10',
@@ -30,6 +32,7 @@ setup(
             'laser_odom_simulate = laser_odom.tools.simulate:main',
             'laser_odom_convert = laser_odom.tools.convert:main',
             'laser_odom_bench = laser_odom.tools.bench:main',
+            'laser_odom_soak = laser_odom.tools.soak:main',
         ],
     },
 )

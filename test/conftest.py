@@ -42,3 +42,27 @@ def real_log(shared_data_dir) -> Callable[[str], Dataset]:
                 pytest.skip(f'real log {name} not found under {shared_data_dir}')
         return cache[name]
     return load
+
+
+@pytest.fixture
+def context():
+    """Return a private rclpy context on a domain of its own (pytest keeps Ctrl-C)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    from node_harness import unique_domain_id
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=unique_domain_id(),
+               signal_handler_options=SignalHandlerOptions.NO)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture(scope='module')
+def peer(request):
+    """Return a test-side rclpy peer on the test module's ``DOMAIN``."""
+    from node_harness import Peer
+    test_peer = Peer(request.module.DOMAIN)
+    yield test_peer
+    test_peer.close()

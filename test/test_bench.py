@@ -1,7 +1,20 @@
-"""``laser_odom_bench``: rows per prior, a parameter file for every row, the search table."""
+"""``laser_odom_bench``: rows per prior, a parameter file for every row, the search table.
 
+Progress only on a terminal; ``--quiet`` silences warnings but not errors.
+"""
+
+import io
 import json
+import logging
+from pathlib import Path
+import subprocess
+import sys
+import warnings
 
+import numpy as np
+
+from laser_odom.core.simulation import simulate
+from laser_odom.tools import bench
 from laser_odom.tools.bench import main
 
 
@@ -34,3 +47,112 @@ def test_zero_is_still_a_prior_name_and_bad_input_is_one_line(tmp_path, capsys):
     assert error.count('\n') == 0 and 'global_search' in error and 'sometimes' in error
     assert main(['--priors', 'sometimes', '--no-progress']) == 2
     assert 'unknown prior' in capsys.readouterr().err
+
+
+# A driver of laser_odom_bench on one tiny simulated dataset whose loading emits one
+# warning of every kind that reaches stderr, and one logged error.
+NOISY_BENCH = """
+import logging, sys, warnings
+import numpy as np
+from laser_odom.core.events import EventLog
+from laser_odom.core.simulation import simulate
+from laser_odom.tools import bench
+
+
+def load():
+    logging.getLogger('laser_odom.core.datasets').warning('a logged warning')
+    warnings.warn('a Python warning')
+    np.log(np.zeros(1))
+    EventLog().warn('test', 'a pipeline event warning')
+    logging.getLogger('laser_odom').error('a logged error')
+    dataset = simulate('office', duration=2.0, seed=3)
+    dataset.name = 'tiny'
+    return dataset
+
+
+bench.dataset_loaders = lambda data_dir: {'tiny': load}
+sys.exit(bench.main(sys.argv[1:]))
+"""
+TINY = ['--datasets', 'tiny', '--matchers', 'icp', '--priors', 'constant_velocity',
+        '--no-search-table']
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bench(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    """Run the noisy bench driver with stdout and stderr piped, as in a CI log.
+
+    Its params file has a misspelt name, which the benchmark warns about.
+    """
+    params = tmp_path / 'params.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    max_scan_gapp: 2.0\n')
+    return subprocess.run([sys.executable, '-c', NOISY_BENCH, *TINY, '--params-file',
+                           str(params), *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_piped_stderr_gets_no_progress_bar_but_the_warnings(tmp_path):
+    result = _bench(tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert '\r' not in result.stderr and '[#' not in result.stderr
+    for text in ('max_scan_gapp', 'a logged warning', 'a Python warning', 'RuntimeWarning',
+                 'a pipeline event warning', 'a logged error'):
+        assert text in result.stderr, (text, result.stderr)
+    assert 'tiny' in result.stdout
+
+
+def test_quiet_silences_every_warning_but_not_errors(tmp_path):
+    result = _bench(tmp_path, '--quiet')
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.strip() == 'a logged error', result.stderr
+    assert 'tiny' in result.stdout
+
+
+def test_progress_bar_only_on_a_terminal(monkeypatch, capsys):
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    dataset = simulate('office', duration=2.0, seed=3)
+    dataset.name = 'tiny'
+    monkeypatch.setattr(bench, 'dataset_loaders', lambda data_dir: {'tiny': lambda: dataset})
+    for extra, drawn in (([], True), (['--no-progress'], False), (['--quiet'], False)):
+        terminal = Terminal()
+        monkeypatch.setattr(sys, 'stderr', terminal)
+        assert bench.main(TINY + extra) == 0
+        assert ('\r' in terminal.getvalue()) == drawn, (extra, terminal.getvalue())
+        if drawn:
+            assert terminal.getvalue().endswith(f'{len(dataset.scans)}/{len(dataset.scans)}\n')
+    capsys.readouterr()
+
+
+def test_quiet_keeps_the_error_line(capsys):
+    assert bench.main(['--quiet', '--priors', 'sometimes']) == 2
+    error = capsys.readouterr().err
+    assert error.count('\n') == 1 and error.startswith('laser_odom_bench: error: unknown prior')
+
+
+def test_warnings_silenced_restores_logging_and_warnings():
+    logger = logging.getLogger('laser_odom.test_bench')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        with bench.warnings_silenced(True):
+            assert not logger.isEnabledFor(logging.WARNING)
+            assert logger.isEnabledFor(logging.ERROR)
+            warnings.warn('hidden')
+            np.log(np.zeros(1))
+        assert caught == []
+        assert logger.isEnabledFor(logging.WARNING)
+        warnings.warn('shown')
+        assert [str(w.message) for w in caught] == ['shown']
+
+
+def test_live_table_says_busy_and_dropped_in_the_diagnostics_wording():
+    from laser_odom.tools.bench_live import format_live, LiveRow
+    row = LiveRow('nicp', 2400, 1800, 600, 9.1, 20.2, 11.0, 25.0, busy=590, dropped=10)
+    header, values = format_live([row], 1081, 40.0, 60.0).splitlines()[1:3]
+    assert header.split()[:7] == ['matcher', 'sent', 'processed', 'no', 'answer', 'busy',
+                                  'dropped']
+    assert values.split()[:6] == ['nicp', '2400', '1800', '600', '590', '10']
+    legend = format_live([row], 1081, 40.0, 60.0)
+    assert 'busy: scans not processed because the node was busy' in legend
+    assert 'dropped: scans dropped before reaching the node' in legend

@@ -338,7 +338,7 @@ def test_registered_with_validated_parameters():
 
 def test_yaml_restates_the_tuned_defaults():
     document = yaml.safe_load(CONFIG_FILE.read_text())
-    params = document['laser_odom']['ros__parameters']
+    params = document['/**']['ros__parameters']
     assert params['matcher'] == 'imls'
     assert params['imls'] == as_dict(ImlsConfig())
     flat = {'matcher': 'imls', **{f'imls.{k}': v for k, v in params['imls'].items()}}

@@ -421,7 +421,7 @@ def test_registered_with_validated_parameters():
 
 def test_yaml_restates_the_tuned_defaults():
     document = yaml.safe_load(CONFIG_FILE.read_text())
-    params = document['laser_odom']['ros__parameters']     # the node's own section
+    params = document['/**']['ros__parameters']
     assert params['matcher'] == 'nicp'
     assert params['nicp'] == as_dict(NicpConfig())
     flat = {'matcher': 'nicp', **{f'nicp.{k}': v for k, v in params['nicp'].items()}}

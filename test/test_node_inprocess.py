@@ -10,13 +10,10 @@ import math
 import types
 
 from geometry_msgs.msg import TransformStamped
-from node_harness import pose_error, TEST_WORLD, unique_domain_id, wait_for
+from node_harness import pose_error, TEST_WORLD, wait_for
 import numpy as np
 import pytest
-import rclpy
-from rclpy.context import Context
 from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
 
 from laser_odom.core import se2
 from laser_odom.core.scan import LaserMounting
@@ -64,15 +61,6 @@ def fake_tf(monkeypatch):
     monkeypatch.setattr(extrinsic, 'TF2_AVAILABLE', True)
     FakeBuffer.transforms, FakeBroadcaster.sent = {}, []
     return fake
-
-
-@pytest.fixture
-def context():
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=unique_domain_id(),
-               signal_handler_options=SignalHandlerOptions.NO)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 def test_extrinsic_from_tf_and_odom_broadcast(fake_tf, context):

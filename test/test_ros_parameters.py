@@ -14,13 +14,14 @@ import yaml
 from laser_odom.core import se2
 from laser_odom.core.pipeline import OdometryEstimate
 from laser_odom.core.scan import LaserMounting, LaserScan, scan_to_points
+from laser_odom.core.settings import (
+    check_change, NodeConfig, parameter_specs, settings_from_params)
 from laser_odom.ros.conversions import (
     covariance_3x3, covariance_6x6, imu_yaw_from_msg, mounting_from_transform, ns_to_stamp,
     odometry_to_msg, scan_from_msg, scan_to_msg, stamp_to_ns, UNOBSERVED_VARIANCE)
 from laser_odom.ros.default_params import default_yaml
 from laser_odom.ros.diagnostics import DiagnosticsReporter, Snapshot
-from laser_odom.ros.parameters import (
-    check_change, descriptor, NodeConfig, parameter_specs, settings_from_params)
+from laser_odom.ros.parameters import descriptor
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / 'config'
 NODE_KEYS = ('/**', 'laser_odom', '/laser_odom', '/**/laser_odom')

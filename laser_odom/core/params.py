@@ -63,6 +63,23 @@ def param_fields(config_type: type) -> list[dataclasses.Field]:
     return [f for f in fields(config_type) if 'param' in f.metadata]
 
 
+YAML_BOOLEAN_WORDS = {False: ('off', 'no', 'false'), True: ('on', 'yes', 'true')}
+"""Words YAML 1.1 (rcl, PyYAML, ``ros2 param set``) reads as booleans when unquoted."""
+
+
+def yaml_word(value: Any, info: ParamInfo) -> Any:
+    """Return the choice a user meant when YAML turned an unquoted word into a boolean.
+
+    ``global_search: off`` reaches the node as ``false``; when exactly one of the
+    choices is a word YAML reads as that boolean, that choice is meant.
+    """
+    if isinstance(value, bool) and info.choices:
+        meant = [c for c in info.choices if c.lower() in YAML_BOOLEAN_WORDS[value]]
+        if len(meant) == 1:
+            return meant[0]
+    return value
+
+
 def check_value(name: str, value: Any, default: Any, info: ParamInfo) -> Any:
     """Validate and coerce one value; raise :class:`ParameterError` with a reason."""
     if isinstance(default, bool):
@@ -82,6 +99,7 @@ def check_value(name: str, value: Any, default: Any, info: ParamInfo) -> Any:
             raise ParameterError(f'{name}={value} is above the maximum {info.high}')
         return type(default)(value)
     if isinstance(default, str):
+        value = yaml_word(value, info)
         if not isinstance(value, str):
             raise ParameterError(f'{name} must be a string, got {value!r}')
         if info.choices is not None and value not in info.choices:

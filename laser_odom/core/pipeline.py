@@ -56,6 +56,8 @@ class OdometryEstimate:
     status: str
     match: MatchResult | None = None
     processing_time: float = 0.0
+    scan_points: np.ndarray | None = None
+    """The scan's points in the base frame (N, 2), as matched."""
 
 
 class OdometryPipeline:
@@ -145,6 +147,7 @@ class OdometryPipeline:
             guess_step = self.motion.predict(dt, prior_step, prior_yaw, self.counters)
             estimate = self._register(current, guess_step, dt, scan.stamp_ns, untrusted)
         estimate.processing_time = time.perf_counter() - started
+        estimate.scan_points = current.points
         self.processing_times.append(estimate.processing_time)
         self.counters['processed'] += 1
         self.counters[estimate.status] += 1
@@ -237,12 +240,18 @@ class OdometryPipeline:
                              f'{registration.outcome(guess)}')
         if verdict.status == 'rejected':
             reason = match.extra.get('rejection', 'unknown')
-            action = ('advancing by the prediction'
-                      if self.config.acceptance.rejected_motion == 'predict'
-                      else 'holding the pose')
+            if self.config.acceptance.rejected_motion != 'predict':
+                action = 'holding the pose'
+            elif self.config.motion.prior == 'none':
+                action = 'holding the pose (prior none: no prediction to advance by)'
+            else:
+                action = 'advancing by the prediction'
             detail = describe_rejection(reason, match, guess, self.config)
+            searched = (f'; the global search ran ({SEARCH_TRIGGERS[trigger]}) and found '
+                        f'{registration.outcome(guess)}'
+                        if trigger in ROUTINE_TRIGGERS else '')
             self.events.warn('rejected_' + reason,
-                             f'match at {at} rejected ({detail}); {action}')
+                             f'match at {at} rejected ({detail}){searched}; {action}')
         elif registration.alternatives:
             self.events.warn('ambiguous', f'match at {at} is ambiguous: '
                              f'{registration.describe_alternatives()}; reported degenerate '

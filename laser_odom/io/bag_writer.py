@@ -181,13 +181,6 @@ def write_bag(path: str | Path, scans: Sequence[LaserScan] = (),
     for topic, traj in [*odometry.items(), *poses.items()]:
         if np.any(np.diff(traj.stamps_ns) < 0):
             raise ValueError(f'stamps of {topic} are not in increasing order')
-    path = Path(path)
-    if path.exists() or path.is_symlink():
-        raise OutputExistsError(f'{path} exists already; not overwriting it')
-    parent = path.parent
-    if not parent.is_dir():
-        raise BagWriteError(f'cannot write {path}: directory {parent} does not exist')
-
     streams: list[tuple[str, str, Iterator[tuple[int, Any]]]] = []
     if scan_record_times is not None:
         if len(scan_record_times) != len(scans) or np.any(np.diff(scan_record_times) < 0):
@@ -205,6 +198,51 @@ def write_bag(path: str | Path, scans: Sequence[LaserScan] = (),
         streams.append((topic, POSE_STAMPED,
                         pose_messages(traj, frame_ids.get(topic, odom_frame))))
 
+    _write_atomically(Path(path), storage, streams)
+
+
+def canonical_cdr(data: bytes, msgtype: str) -> bytes:
+    """Return a serialised message with its alignment padding zeroed.
+
+    The middleware leaves whatever was in its buffer in the padding between fields, so
+    the same message can travel as different bytes; decoded and encoded again, every
+    field keeps its exact bytes and the padding becomes zeros.
+    """
+    return bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.deserialize_cdr(data, msgtype), msgtype))
+
+
+def _canonical(messages: Sequence[tuple[int, bytes]],
+               msgtype: str) -> Iterator[tuple[int, bytes]]:
+    """Yield ``(stamp, canonical bytes)`` of serialised messages of one type."""
+    for stamp, data in messages:
+        yield stamp, canonical_cdr(data, msgtype)
+
+
+def write_message_bag(path: str | Path,
+                      topics: Mapping[str, tuple[str, Sequence[tuple[int, bytes]]]],
+                      storage: str = 'sqlite3') -> None:
+    """Write already serialised (CDR) messages: ``{topic: (type, [(stamp_ns, data)])}``.
+
+    Each topic's messages must be in stamp order; their bag time is their stamp. Used
+    for messages that must be stored as a node publishes them: every field's bytes are
+    kept, the padding is zeroed (:func:`canonical_cdr`) so that the same messages
+    always make the same bag.
+    """
+    if storage not in STORAGES:
+        raise ValueError(f'unknown storage {storage!r}; valid: {", ".join(STORAGES)}')
+    streams = [(topic, msgtype, _canonical(messages, msgtype))
+               for topic, (msgtype, messages) in topics.items()]
+    _write_atomically(Path(path), storage, streams)
+
+
+def _write_atomically(path: Path, storage: str,
+                      streams: list[tuple[str, str, Iterator[tuple[int, Any]]]]) -> None:
+    """Write the bag in a hidden staging directory and rename it into place."""
+    if path.exists() or path.is_symlink():
+        raise OutputExistsError(f'{path} exists already; not overwriting it')
+    parent = path.parent
+    if not parent.is_dir():
+        raise BagWriteError(f'cannot write {path}: directory {parent} does not exist')
     try:
         staging = Path(tempfile.mkdtemp(prefix=f'.{path.name}.', suffix='.partial', dir=parent))
     except OSError as error:
@@ -230,7 +268,8 @@ def _write(target: Path, plugin: StoragePlugin,
                        for topic, msgtype, _ in streams]
         tagged = [_tag(k, stream) for k, (_, _, stream) in enumerate(streams)]
         for stamp, k, msg in heapq.merge(*tagged, key=lambda item: (item[0], item[1])):
-            data = _TYPESTORE.serialize_cdr(msg, streams[k][1])
+            data = msg if isinstance(msg, bytes) else _TYPESTORE.serialize_cdr(
+                msg, streams[k][1])
             writer.write(connections[k], stamp, data)
 
 

@@ -7,11 +7,16 @@ in the 6x6 ``[x, y, z, roll, pitch, yaw]`` covariances of ``nav_msgs/Odometry``
 :data:`UNOBSERVED_VARIANCE` on the three dimensions a planar odometry does not
 observe, the convention 2D consumers such as robot_localization's ``two_d_mode``
 expect. Nothing non-finite is ever put in an outgoing message.
+
+:func:`published_messages` is the one builder of what the node sends for a scan; the
+replay's ``--output-bag`` serialises the same messages, so a bag written offline
+holds byte for byte what the node would have published.
 """
 
 from __future__ import annotations
 
 from array import array
+from dataclasses import dataclass
 import math
 
 from builtin_interfaces.msg import Time
@@ -19,7 +24,7 @@ from geometry_msgs.msg import (
     Pose as PoseMsg, PoseStamped, PoseWithCovarianceStamped, Quaternion, TransformStamped)
 from nav_msgs.msg import Odometry
 import numpy as np
-from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg
+from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg, PointCloud2, PointField
 
 from laser_odom.core import se2
 from laser_odom.core.pipeline import OdometryEstimate
@@ -161,6 +166,14 @@ def pose_stamped_to_msg(estimate: OdometryEstimate, stamp: Time,
     return msg
 
 
+def pose_stamped_from_odometry(msg: Odometry) -> PoseStamped:
+    """Return the ``PoseStamped`` the node publishes beside an ``Odometry`` message."""
+    pose = PoseStamped()
+    pose.header = msg.header
+    pose.pose = msg.pose.pose
+    return pose
+
+
 def transform_to_msg(estimate: OdometryEstimate, stamp: Time, odom_frame: str,
                      base_frame: str) -> TransformStamped | None:
     """Return the ``odom_frame -> base_frame`` transform of an estimate (None if not finite)."""
@@ -173,6 +186,55 @@ def transform_to_msg(estimate: OdometryEstimate, stamp: Time, odom_frame: str,
     msg.transform.translation.x = float(estimate.pose[0])
     msg.transform.translation.y = float(estimate.pose[1])
     msg.transform.rotation = yaw_quaternion(float(estimate.pose[2]))
+    return msg
+
+
+@dataclass
+class PublishedMessages:
+    """What the node publishes for one processed scan."""
+
+    odometry: Odometry
+    pose: PoseStamped
+    transform: TransformStamped
+
+
+def published_messages(estimate: OdometryEstimate, stamp: Time, odom_frame: str,
+                       base_frame: str) -> PublishedMessages | None:
+    """Return the odometry, pose and TF of an estimate (None if its pose is not finite)."""
+    odometry = odometry_to_msg(estimate, stamp, odom_frame, base_frame)
+    if odometry is None:
+        return None
+    return PublishedMessages(odometry, pose_stamped_to_msg(estimate, stamp, odom_frame),
+                             transform_to_msg(estimate, stamp, odom_frame, base_frame))
+
+
+CLOUD_FIELDS = [PointField(name=axis, offset=4 * k, datatype=PointField.FLOAT32, count=1)
+                for k, axis in enumerate('xyz')]
+"""``x y z`` float32 fields of the debug point cloud."""
+
+
+def matched_cloud_msg(estimate: OdometryEstimate, stamp: Time,
+                      odom_frame: str) -> PointCloud2 | None:
+    """Return the matched scan in ``odom_frame`` as ``sensor_msgs/PointCloud2`` (for RViz).
+
+    The scan's base-frame points are moved by the estimated pose, so in RViz they
+    should lie on the walls the previous scans outlined; where they do not, the match
+    is wrong. None when the estimate has no points or a non-finite pose.
+    """
+    if estimate.scan_points is None or not se2.is_finite_pose(estimate.pose):
+        return None
+    world = se2.transform_points(estimate.pose, np.asarray(estimate.scan_points, float))
+    xyz = np.zeros((len(world), 3), dtype=np.float32)
+    xyz[:, :2] = world
+    msg = PointCloud2()
+    msg.header.stamp = stamp
+    msg.header.frame_id = odom_frame
+    msg.height, msg.width = 1, len(xyz)
+    msg.fields = CLOUD_FIELDS
+    msg.is_bigendian = False
+    msg.point_step, msg.row_step = 12, 12 * len(xyz)
+    msg.data = xyz.tobytes()
+    msg.is_dense = True
     return msg
 
 

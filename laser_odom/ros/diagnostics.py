@@ -5,6 +5,14 @@ pipeline's counters (scans in and processed, skipped and rejected scans by reaso
 failed and degenerate matches), processing-time statistics and the input rate. The
 level is judged on the last period only (failure rate, backlog, silence) and on the
 recent processing times, so the status recovers as soon as the problem does.
+
+Scans the odometry never saw are said as what happened to them: scans dropped before
+reaching the node (stamps missing from the sequence: lost by the driver, the network
+or the subscription queue; counter ``missed_scans``) and scans not processed because
+the node was busy (overwritten in its one-scan slot while it matched an earlier one;
+``skipped_backlog``). ``scans skipped`` totals every scan not processed, by reason in
+``skipped: <reason>`` (these two included, under the counter names that other programs
+read); a repaired scan was processed and is counted under its own name.
 """
 
 from __future__ import annotations
@@ -17,15 +25,33 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
 
 from laser_odom.core.pipeline import EVENTS, OUTCOMES
-from laser_odom.ros.parameters import NodeConfig
+from laser_odom.core.settings import NodeConfig
+from laser_odom.core.validation import REJECTIONS
 
 
 REJECTED_PREFIX = 'rejected_'
 """Prefix of the per-reason rejection counters the node keeps."""
 
+DROPPED = 'missed_scans'
+"""Counter of the scans dropped before reaching the node (gaps in the stamps)."""
+
+BUSY = 'skipped_backlog'
+"""Counter of the scans not processed because the node was busy (slot overwritten)."""
+
+DROPPED_KEY = 'scans dropped before reaching the node'
+"""Diagnostics key of the :data:`DROPPED` count."""
+
+BUSY_KEY = 'scans not processed because the node was busy'
+"""Diagnostics key of the :data:`BUSY` count."""
+
+SKIP_REASONS = frozenset(REJECTIONS) | {'duplicate_stamp', 'extrinsic_missing', BUSY, DROPPED}
+"""Counters of scans that were not processed: invalid, a repeated stamp, no laser
+mounting from TF, busy, dropped. A repaired scan (``length_mismatch``, ...) or a
+matcher error is processed, so its counter is listed under its own name."""
+
 
 class ScanGapCounter:
-    """Counts scans that never reached the node, from gaps between consecutive stamps.
+    """Counts scans dropped before reaching the node, from gaps between successive stamps.
 
     A scan dropped on the wire, or overwritten in the depth-1 subscription queue while
     the node was busy, leaves a gap of several scan periods between the stamps the node
@@ -72,8 +98,13 @@ class Snapshot:
 
 
 def skip_reasons(counters: Counter) -> dict[str, int]:
-    """Return the counters that name why a scan was skipped."""
-    return {k: v for k, v in sorted(counters.items()) if v
+    """Return the counters that name why a scan was not processed."""
+    return {k: v for k, v in sorted(counters.items()) if v and k in SKIP_REASONS}
+
+
+def other_counts(counters: Counter) -> dict[str, int]:
+    """Return the counters of processed scans that are no outcome, rejection or event."""
+    return {k: v for k, v in sorted(counters.items()) if v and k not in SKIP_REASONS
             and k not in OUTCOMES and k not in EVENTS and not k.startswith(REJECTED_PREFIX)}
 
 
@@ -124,12 +155,13 @@ class DiagnosticsReporter:
             raise_level(DiagnosticStatus.ERROR, f'median processing time {median * 1e3:.0f} ms')
         elif median >= thresholds.diagnostics_warn_processing_time and len(times):
             raise_level(DiagnosticStatus.WARN, f'median processing time {median * 1e3:.0f} ms')
-        if delta['skipped_backlog'] > 0:
-            raise_level(DiagnosticStatus.WARN, f'processing slower than the scans arrive '
-                                               f'({delta["skipped_backlog"]} skipped)')
-        if delta['missed_scans'] > 0:
-            raise_level(DiagnosticStatus.WARN, f'{delta["missed_scans"]} scans missed '
-                                               '(gaps in the scan stamps)')
+        if delta[BUSY] > 0:
+            raise_level(DiagnosticStatus.WARN, f'{delta[BUSY]} {BUSY_KEY} (matching is '
+                                               'slower than the scans arrive)')
+        if delta[DROPPED] > 0:
+            raise_level(DiagnosticStatus.WARN, f'{delta[DROPPED]} {DROPPED_KEY} (gaps in '
+                                               'the scan stamps: lost by the driver or the '
+                                               'network)')
         if received == 0:
             raise_level(DiagnosticStatus.WARN, f'no scans received on {now.scan_topic}')
 
@@ -140,6 +172,7 @@ class DiagnosticsReporter:
             ('matcher', now.matcher), ('prior', now.prior),
             ('scans received', now.received), ('scans in', now.counters['scans_in']),
             ('scans processed', now.counters['processed']),
+            (BUSY_KEY, now.counters[BUSY]), (DROPPED_KEY, now.counters[DROPPED]),
             ('scans skipped', sum(skipped.values())),
             ('failed matches', now.counters['rejected']),
             ('degenerate matches', now.counters['degenerate']),
@@ -153,6 +186,7 @@ class DiagnosticsReporter:
         pairs += [(f'skipped: {k}', v) for k, v in skipped.items()]
         pairs += [(f'rejected: {k}', v) for k, v in rejected.items()]
         pairs += [(k, now.counters[k]) for k in EVENTS if now.counters[k]]
+        pairs += list(other_counts(now.counters).items())
         return DiagnosticStatus(
             level=level, name=self.name, hardware_id=self.hardware_id,
             message='; '.join(problems) if problems else 'OK', values=_values(pairs))

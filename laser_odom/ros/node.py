@@ -9,41 +9,46 @@ object the replay harness drives offline.
 The node never queues scans: the subscription callback only fills a one-scan slot
 and a worker thread drains it, so when matching is slower than the scanner the newest
 scan is matched against the last processed one and the overwritten scans are counted
-as ``skipped_backlog``. ``~/reset`` (``std_srvs/Trigger``) and ``~/set_pose``
+on ``/diagnostics`` as scans not processed because the node was busy. ``~/reset``
+(``std_srvs/Trigger``) and ``~/set_pose``
 (``geometry_msgs/PoseWithCovarianceStamped``) restart the integration; health goes to
-``/diagnostics`` once a second; parameters are live (see :mod:`.live`).
+``/diagnostics`` once a second; parameters are live (see :mod:`.live`). With
+``publish_debug`` the matched scan goes out on ``~/matched_scan`` in the odom frame.
 """
 
 from __future__ import annotations
 
 from collections import deque
-import os
 import sys
 import threading
 import time
+from typing import Sequence
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data, QoSProfile
-from sensor_msgs.msg import LaserScan as LaserScanMsg
+from sensor_msgs.msg import LaserScan as LaserScanMsg, PointCloud2
 from std_srvs.srv import Trigger
 
 from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
+from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
 from laser_odom.ros.conversions import (
-    initial_pose_from_msg, odometry_to_msg, pose_stamped_to_msg, scan_from_msg, stamp_to_ns,
-    transform_to_msg)
+    initial_pose_from_msg, matched_cloud_msg, published_messages, scan_from_msg, stamp_to_ns)
 from laser_odom.ros.diagnostics import (
     DiagnosticsReporter, ScanGapCounter, Snapshot)
-from laser_odom.ros.extrinsic import TfInterface
+from laser_odom.ros.extrinsic import TF2_AVAILABLE, TfInterface
 from laser_odom.ros.live import LiveParameters, StartupError
 from laser_odom.ros.priors import PriorInputs
+from laser_odom.ros.usage import params_file_arguments, usage, wants_help
 
 SCAN_QOS = QoSProfile(
     history=qos_profile_sensor_data.history, depth=1,
@@ -61,24 +66,26 @@ LATENCY_WINDOW = 1000
 class LaserOdomNode(Node):
     """Scan-to-scan laser odometry as a ROS 2 node (node name ``laser_odom``)."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, params_files: Sequence[ParamsFile] = (), **kwargs) -> None:
         """Declare parameters, build the pipeline and start the worker.
 
-        Raises :class:`StartupError` (after destroying the node) when the parameters
-        are invalid, e.g. an unknown ``matcher``.
+        ``params_files`` are the parsed files given with ``--params-file`` (to warn when
+        none of a file's sections addresses this node). Raises :class:`StartupError`
+        (after destroying the node) when the parameters are invalid, e.g. an unknown
+        ``matcher``.
         """
         super().__init__('laser_odom', **kwargs)
         try:
-            self._setup()
+            self._setup(params_files)
         except BaseException:
             self.shutdown()
             self.destroy_node()
             raise
 
-    def _setup(self) -> None:
+    def _setup(self, params_files: Sequence[ParamsFile]) -> None:
         """Create everything the node runs with."""
         self._lock = threading.RLock()
-        self.params = LiveParameters(self, self._on_settings)
+        self.params = LiveParameters(self, self._on_settings, params_files, TF2_AVAILABLE)
         settings = self.params.settings
         self._tf = TfInterface(self, settings.node.base_frame, settings.node.use_tf_extrinsic)
         self.pipeline = OdometryPipeline(
@@ -87,6 +94,7 @@ class LaserOdomNode(Node):
         self._priors.configure(settings.pipeline.motion.prior, settings.priors)
         self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
         self._pose_pub = self.create_publisher(PoseStamped, 'pose', 10)
+        self._cloud_pub = self.create_publisher(PointCloud2, '~/matched_scan', 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._slot_lock = threading.Lock()
         self._slot: LaserScanMsg | None = None
@@ -112,6 +120,25 @@ class LaserOdomNode(Node):
                                         daemon=True)
         self._worker.start()
         self._log_startup()
+
+    def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
+        """Set parameters (the parameter service's entry): refuse with a reason or convert.
+
+        An integer for a floating-point parameter is taken as a float; an unknown
+        name, a wrong type or value, and ``publish_tf`` without tf2_ros are refused
+        with a message naming the parameter (see :meth:`LiveParameters.refusal`).
+        """
+        params = getattr(self, 'params', None)
+        if params is not None:
+            parameter_list = params.converted(parameter_list)
+            reason = params.refusal(parameter_list)
+            if reason is not None:
+                return SetParametersResult(successful=False, reason=reason)
+        return super().set_parameters_atomically(parameter_list)
+
+    def set_parameters(self, parameter_list: list[Parameter]) -> list[SetParametersResult]:
+        """Set parameters one at a time, each as :meth:`set_parameters_atomically` does."""
+        return [self.set_parameters_atomically([p]) for p in parameter_list]
 
     def _log_startup(self) -> None:
         """Say once what the node runs with and where it reads and writes."""
@@ -200,7 +227,7 @@ class LaserOdomNode(Node):
         if estimate is None:
             return False
         return self._publish(estimate, msg.header.stamp, node.odom_frame, node.base_frame,
-                             node.publish_tf)
+                             node.publish_tf, node.publish_debug)
 
     def _update_extrinsic(self, frame_id: str) -> bool:
         """Apply the TF mounting of ``frame_id``; False while it is unknown."""
@@ -213,17 +240,21 @@ class LaserOdomNode(Node):
         return True
 
     def _publish(self, estimate: OdometryEstimate, stamp: Time, odom_frame: str,
-                 base_frame: str, publish_tf: bool) -> bool:
+                 base_frame: str, publish_tf: bool, publish_debug: bool) -> bool:
         """Publish odometry, pose and (optionally) TF with the scan's stamp; True if sent."""
-        odometry = odometry_to_msg(estimate, stamp, odom_frame, base_frame)
-        if odometry is None:
+        messages = published_messages(estimate, stamp, odom_frame, base_frame)
+        if messages is None:
             self.get_logger().error('non-finite pose estimate not published',
                                     throttle_duration_sec=5.0)
             return False
-        self._odom_pub.publish(odometry)
-        self._pose_pub.publish(pose_stamped_to_msg(estimate, stamp, odom_frame))
+        self._odom_pub.publish(messages.odometry)
+        self._pose_pub.publish(messages.pose)
         if publish_tf:
-            self._tf.broadcast(transform_to_msg(estimate, stamp, odom_frame, base_frame))
+            self._tf.broadcast(messages.transform)
+        if publish_debug:
+            cloud = matched_cloud_msg(estimate, stamp, odom_frame)
+            if cloud is not None:
+                self._cloud_pub.publish(cloud)
         return True
 
     def _on_reset(self, request: Trigger.Request,
@@ -279,19 +310,18 @@ class LaserOdomNode(Node):
             worker.join(timeout=5.0)
 
 
-def missing_params_file(args: list[str]) -> str | None:
-    """Return the first ``--params-file`` argument that is not a readable file."""
-    for flag, value in zip(args, args[1:]):
-        if flag == '--params-file' and not os.access(value, os.R_OK):
-            return value
-    return None
-
-
 def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C; return the exit code (2 for bad parameters)."""
-    missing = missing_params_file(sys.argv if args is None else args)
-    if missing is not None:
-        print(f'laser_odom_node: error: params file not found: {missing}', file=sys.stderr)
+    argv = sys.argv if args is None else args
+    if wants_help(argv):
+        print(usage())
+        return 0
+    try:
+        # The files' layout is judged by the same reader the replay and tools use,
+        # before rcl parses them, so a malformed file gets the same one-line error.
+        params_files = [parse_params_file(path) for path in params_file_arguments(argv)]
+    except ParamsFileError as error:
+        print(f'laser_odom_node: error: {error}', file=sys.stderr)
         return 2
     try:
         rclpy.init(args=args)
@@ -304,7 +334,7 @@ def main(args: list[str] | None = None) -> int:
     try:
         # Built before the node so that a Ctrl-C at any later moment finds it complete.
         executor = SingleThreadedExecutor()
-        node = LaserOdomNode()
+        node = LaserOdomNode(params_files)
         executor.add_node(node)
         executor.spin()
     except StartupError as error:

@@ -4,6 +4,10 @@ Rows are dataset x matcher x prior. Datasets are the simulated ones (generated h
 plus every real dataset found under ``--data-dir``. Timing is taken inside this process
 around the whole per-scan work of the pipeline (conversion, tree build, matching),
 after a warm-up.
+
+A progress bar is drawn on stderr only when stderr is a terminal (never into a pipe or
+a log file); ``--quiet`` leaves it out and silences warnings too (see
+:func:`warnings_silenced`), while errors are still printed.
 """
 
 from __future__ import annotations
@@ -11,13 +15,14 @@ from __future__ import annotations
 import argparse
 from functools import lru_cache
 import json
+import logging
 import math
 import os
 from pathlib import Path
 import platform
 import sys
 import time
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence, TextIO
 
 import numpy as np
 
@@ -30,7 +35,11 @@ from laser_odom.core.datasets import (
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.params import ParameterError
 from laser_odom.core.trajectory import Dataset
-from laser_odom.io.params_file import load_node_params, ParamsFileError
+from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.tools.quiet import warnings_silenced
+
+LOGGER = logging.getLogger('laser_odom.tools.bench')
+"""Where the benchmark's own warnings go (stderr; ``--quiet`` silences them)."""
 
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
 """``../shared/data`` beside a source checkout, the project's real logs."""
@@ -94,9 +103,10 @@ def format_table(rows: Sequence[BenchRow]) -> str:
 class ProgressBar:
     """A one-line progress bar on stderr, redrawn at most every 0.2 s."""
 
-    def __init__(self, label: str, total: int, stream=sys.stderr) -> None:
-        """Start a bar for ``total`` items."""
-        self.label, self.total, self.stream = label, max(total, 1), stream
+    def __init__(self, label: str, total: int, stream: TextIO | None = None) -> None:
+        """Start a bar for ``total`` items on ``stream`` (default: the current stderr)."""
+        self.label, self.total = label, max(total, 1)
+        self.stream = stream if stream is not None else sys.stderr
         self.last_draw = 0.0
 
     def __call__(self, done: int) -> None:
@@ -111,6 +121,11 @@ class ProgressBar:
         if done >= self.total:
             self.stream.write('\n')
         self.stream.flush()
+
+
+def progress_wanted(args: argparse.Namespace) -> bool:
+    """Tell whether to draw progress bars: not asked away, and stderr is a terminal."""
+    return not (args.no_progress or args.quiet) and sys.stderr.isatty()
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -131,7 +146,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="the node's parameter file: every row runs with its settings "
                              '(except matcher and prior, which each row sets)')
     parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
-    parser.add_argument('--no-progress', action='store_true', help='no progress bar')
+    parser.add_argument('--no-progress', action='store_true',
+                        help='no progress bar (it is drawn on stderr only when stderr is '
+                             'a terminal)')
+    parser.add_argument('--quiet', action='store_true',
+                        help='no progress bar and no warnings; errors are still printed')
     parser.add_argument('--no-search-table', action='store_true',
                         help='leave out the table that times the global search alone')
     live = parser.add_argument_group(
@@ -176,12 +195,18 @@ def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
     """Run every selected dataset x matcher x prior; return the rows and search timings."""
     loaders = dataset_loaders(args.data_dir)
-    values = {} if args.params_file is None else load_node_params(args.params_file)
+    values: dict[str, Any] = {}
+    if args.params_file is not None:
+        checked = read_params_files([args.params_file])
+        values = checked.values
+        for warning in checked.warnings:
+            LOGGER.warning('laser_odom_bench: warning: %s', warning)
     matchers = _split(args.matchers, matcher_names(), 'matcher')
     priors = _split(args.priors, list(BENCH_PRIORS), 'prior')
     names = _split(args.datasets, list(loaders), 'dataset') if args.datasets else list(loaders)
     rows: list[BenchRow] = []
     searches: list[SearchTimingRow] = []
+    progress = progress_wanted(args)
     for name in names:
         dataset = loaders[name]()
         has_odometry = len(dataset.odometry) > 0
@@ -192,7 +217,7 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
                 if prior == 'odom' and not has_odometry:
                     continue
                 label = f'{name} {matcher} {prior}'
-                bar = None if args.no_progress else ProgressBar(label, len(dataset.scans))
+                bar = ProgressBar(label, len(dataset.scans)) if progress else None
                 config = pipeline_config_from_params({**values, 'matcher': matcher})
                 rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
                                           config=config))
@@ -226,8 +251,12 @@ def format_search_table(rows: Sequence[SearchTimingRow]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark and print its table; 2 on a usage or data error."""
     args = parse_args(argv)
-    if args.live:
-        return main_live(args)
+    with warnings_silenced(args.quiet):
+        return main_live(args) if args.live else main_offline(args)
+
+
+def main_offline(args: argparse.Namespace) -> int:
+    """Run the offline benchmark and print its tables."""
     try:
         rows, searches = run(args)
     except (DatasetError, ParamsFileError, ParameterError, ValueError) as err:

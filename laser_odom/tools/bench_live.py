@@ -3,15 +3,18 @@
 For each matcher, a fresh ``laser_odom_node`` process is started on a private ROS
 domain and simulated scans (default 1081 beams over 270 deg, like a Hokuyo UTM-30LX)
 are published to it at the sensor rate (default 40 Hz for 60 s), without waiting for
-answers. The table says how many scans the node processed and how many it skipped to
-stay current (it never queues), the receipt-to-publish latency the node measured, and
-the end-to-end latency seen by the publisher (scan sent -> odometry received, DDS
-included).
+answers. The table says how many scans the node processed, how many got no answer,
+and of those, from the node's diagnostics, how many were not processed because the
+node was busy (it never queues: a scan arriving while it matches replaces the waiting
+one) and how many were dropped before reaching the node (lost on the way); then the
+receipt-to-publish latency the node measured, and the end-to-end latency seen by the
+publisher (scan sent -> odometry received, DDS included).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 import math
 import os
 from pathlib import Path
@@ -36,6 +39,8 @@ from sensor_msgs.msg import LaserScan as LaserScanMsg
 
 from laser_odom.core.simulation import LaserModel, simulate
 from laser_odom.ros.conversions import scan_to_msg, stamp_to_ns
+from laser_odom.ros.diagnostics import BUSY_KEY, DROPPED_KEY
+from laser_odom.tools.playback import play
 
 STARTUP_TIMEOUT = 30.0
 """Seconds to wait for a node to come up (discovery included)."""
@@ -43,7 +48,12 @@ STARTUP_TIMEOUT = 30.0
 
 @dataclass
 class LiveRow:
-    """What one matcher did with a stream of scans."""
+    """What one matcher did with a stream of scans.
+
+    ``skipped`` is the number of scans without an answer (sent - processed); ``busy``
+    and ``dropped`` are the node's own counts of the scans it did not process because
+    it was busy and of those that never reached it.
+    """
 
     matcher: str
     sent: int
@@ -53,6 +63,8 @@ class LiveRow:
     node_p95_ms: float
     e2e_median_ms: float
     e2e_p95_ms: float
+    busy: int = 0
+    dropped: int = 0
 
 
 class LiveSession:
@@ -122,13 +134,13 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
         spinner = threading.Thread(target=session.spin_until,
                                    args=(lambda: False, len(messages) / rate + 3.0))
         spinner.start()
-        start = time.monotonic()
-        for index, (stamp, msg) in enumerate(messages):
-            delay = start + index / rate - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
+
+        def send(stamp: int, msg: LaserScanMsg) -> None:
             sent[stamp] = time.monotonic()
             session.publisher.publish(msg)
+
+        play((index / rate, partial(send, stamp, msg))
+             for index, (stamp, msg) in enumerate(messages))
         spinner.join()
         latencies = np.array([session.received[s] - sent[s] for s in sent
                               if s in session.received])
@@ -138,7 +150,8 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
             float(diag.get('latency median [ms]', 'nan').replace('n/a', 'nan')),
             float(diag.get('latency p95 [ms]', 'nan').replace('n/a', 'nan')),
             float(np.median(latencies) * 1e3) if len(latencies) else math.nan,
-            float(np.percentile(latencies, 95) * 1e3) if len(latencies) else math.nan)
+            float(np.percentile(latencies, 95) * 1e3) if len(latencies) else math.nan,
+            int(diag.get(BUSY_KEY, '0')), int(diag.get(DROPPED_KEY, '0')))
     finally:
         session.close()
 
@@ -156,12 +169,16 @@ def format_live(rows: Sequence[LiveRow], beams: int, rate: float, duration: floa
     """Return the live benchmark table."""
     lines = [f'# live: {beams} beams at {rate:g} Hz for {duration:g} s, published to a '
              'fresh laser_odom_node per matcher',
-             f'{"matcher":<8} {"sent":>6} {"processed":>9} {"skipped":>8} '
-             f'{"node med ms":>11} {"node p95 ms":>11} {"e2e med ms":>10} {"e2e p95 ms":>10}']
+             f'{"matcher":<8} {"sent":>6} {"processed":>9} {"no answer":>9} {"busy":>6} '
+             f'{"dropped":>7} {"node med ms":>11} {"node p95 ms":>11} {"e2e med ms":>10} '
+             f'{"e2e p95 ms":>10}']
     for r in rows:
-        lines.append(f'{r.matcher:<8} {r.sent:>6} {r.processed:>9} {r.skipped:>8} '
+        lines.append(f'{r.matcher:<8} {r.sent:>6} {r.processed:>9} {r.skipped:>9} '
+                     f'{r.busy:>6} {r.dropped:>7} '
                      f'{r.node_median_ms:>11.2f} {r.node_p95_ms:>11.2f} '
                      f'{r.e2e_median_ms:>10.2f} {r.e2e_p95_ms:>10.2f}')
+    lines.append(f'# busy: {BUSY_KEY}; dropped: {DROPPED_KEY} (both from its '
+                 '/diagnostics)')
     lines.append('# node: receipt -> publish inside the node (its /diagnostics); e2e: '
                  'publish of the scan -> receipt of its odometry by the publisher')
     return '\n'.join(lines)

@@ -4,14 +4,18 @@ By default the scans are fed in-process through the same
 :class:`~laser_odom.core.pipeline.OdometryPipeline` the node runs, with the node's own
 parameter file (``--params-file``) and the same prior buffers
 (:mod:`laser_odom.core.priors`). With ``--live`` they are published over DDS to a
-running ``laser_odom_node`` instead, one at a time, and its ``odom`` answers are
-recorded (see :mod:`laser_odom.tools.replay_live`).
+running ``laser_odom_node`` instead, one at a time (or, with ``--rate R``, at ``R``
+times their recorded rate without waiting), and its ``odom`` answers are recorded (see
+:mod:`laser_odom.tools.replay_live`).
 
 Outputs: ``--tum`` (one line per processed scan, written atomically), ``--output-bag``
-(``/odom`` with covariance and ``/pose``), and a summary; ``--reference`` adds ATE and
-RPE (:mod:`laser_odom.core.metrics`). A damaged bag is replayed up to the damage, the
-outputs are written, and the exit code is 2. Exit codes: 0 ok, 1 runtime failure,
-2 input error (missing or unreadable bag, no scan topic, bad params file, damaged bag).
+(``/odom`` with covariance and ``/pose``), and a summary; ``--reference`` adds how many
+poses it pairs with, ATE and RPE (:mod:`laser_odom.core.metrics`), and is an input
+error when it pairs with less than ``--min-coverage`` of them (the outputs are
+written first). A damaged bag is replayed up to the damage, the outputs are written,
+and the exit code is 2. Exit codes: 0 ok, 1 runtime failure, 2 input error (missing or
+unreadable bag, no scan topic, bad params file, damaged bag, reference that does not
+cover the trajectory).
 """
 
 from __future__ import annotations
@@ -19,26 +23,42 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 import sys
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
-from laser_odom.core.config import pipeline_config_from_params, PRIORS
+from laser_odom.core.config import PRIORS
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.params import ParameterError
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
-from laser_odom.core.priors import prior_config_from_params, PriorConfig, PriorFeed
+from laser_odom.core.priors import PriorConfig, PriorFeed
 from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import LaserScan
+from laser_odom.core.settings import NodeSettings, settings_from_params
 from laser_odom.io.bag_reader import (
     BagError, BagReader, BagTruncatedError, LASER_SCAN)
 from laser_odom.io.errors import BagWriteError, OutputExistsError
-from laser_odom.io.params_file import load_node_params, ParamsFileError
+from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import (
-    print_summary, ReplayError, ReplayRecord, write_outputs)
+    DEFAULT_MIN_COVERAGE, print_summary, ReplayError, ReplayRecord, write_outputs)
 
 PROG = 'laser_odom_replay'
 PROGRESS_EVERY = 500
 """Scans between two progress lines (unless --quiet)."""
+
+
+def _number(low: float, high: float, low_open: bool = False) -> Callable[[str], float]:
+    """Return an argparse type: a finite float in ``[low, high]`` (``(low, high]``)."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+        if not (low < value if low_open else low <= value) or not value <= high:
+            bracket = '(' if low_open else '['
+            raise argparse.ArgumentTypeError(f'{text} is outside {bracket}{low:g}, {high:g}]')
+        return value
+    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,7 +81,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--storage', choices=('sqlite3', 'mcap'), default='sqlite3',
                    help='storage of --output-bag (default: sqlite3)')
     p.add_argument('--reference', type=Path,
-                   help='reference TUM file: print ATE (SE(2)-aligned) and RPE')
+                   help='reference TUM file: print how many poses it pairs with, ATE '
+                   '(SE(2)-aligned) and RPE')
+    p.add_argument('--min-coverage', type=_number(0.0, 1.0), default=DEFAULT_MIN_COVERAGE,
+                   metavar='FRACTION',
+                   help='--reference: fail (exit 2) when less than this fraction of the '
+                   'estimated poses pair with a reference pose; the outputs are written '
+                   f'anyway (default: {DEFAULT_MIN_COVERAGE:g})')
     p.add_argument('--live', action='store_true',
                    help='publish the scans to a running laser_odom_node instead')
     p.add_argument('--scan-topic-out', default='scan', help='--live: scan topic of the node')
@@ -69,26 +95,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--node-name', default='laser_odom',
                    help='--live: node name, for its ~/reset service and diagnostics')
     p.add_argument('--timeout', type=float, default=2.0,
-                   help='--live: seconds to wait for the odometry of one scan')
-    p.add_argument('--quiet', action='store_true', help='no progress lines')
+                   help='--live: seconds to wait for the odometry of one scan (with '
+                   '--rate: of the last one)')
+    p.add_argument('--rate', type=_number(0.0, 1e6, low_open=True), metavar='R',
+                   help='--live: play the scans (and prior messages) at R times their '
+                   'recorded rate, by their stamps, without waiting for the odometry '
+                   '(like ros2 bag play --rate); reports the scans the node skipped. '
+                   'Default: lock-step, each scan waits for its odometry')
+    p.add_argument('--quiet', action='store_true',
+                   help='no progress lines and no warnings (errors still show)')
     return p
 
 
-def load_settings(args: argparse.Namespace) -> tuple[Any, PriorConfig, dict[str, Any]]:
-    """Return the pipeline and prior configurations and the raw parameter values."""
+def load_settings(args: argparse.Namespace) -> NodeSettings:
+    """Return what the node would run with: the params file read as the node reads it.
+
+    The file's warnings (unknown names, no section for the node) go to stderr, as the
+    node logs them; ``--matcher`` and ``--prior`` override the file.
+    """
     values: dict[str, Any] = {}
     if args.params_file is not None:
-        values = load_node_params(args.params_file)
+        checked = read_params_files([args.params_file])
+        for warning in checked.warnings:
+            warner(args.quiet)(warning)
+        values = checked.values
     if args.matcher is not None:
         values['matcher'] = args.matcher
     if args.prior is not None:
         values['prior'] = args.prior
-    where = f' in {args.params_file}' if args.params_file is not None else ''
     try:
-        return (pipeline_config_from_params(values), prior_config_from_params(values),
-                values)
+        return settings_from_params(values)
     except ParameterError as err:
-        raise ReplayError(f'bad parameter{where}: {err}') from None
+        raise ReplayError(f'bad parameter: {err}') from None
 
 
 def load_prior_feed(bag: BagReader, prior: str, config: PriorConfig,
@@ -119,6 +157,8 @@ def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed:
     def on_estimate(estimate: OdometryEstimate) -> None:
         record.add(estimate.stamp_ns, estimate.pose, estimate.pose_covariance,
                    estimate.status, estimate.processing_time)
+        if record.messages is not None:
+            record.messages.add_estimate(estimate)
 
     try:
         run_pipeline(pipeline, scans, priors=feed, progress=progress, on_estimate=on_estimate)
@@ -127,8 +167,13 @@ def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed:
 
 
 def warn_on_stderr(message: str) -> None:
-    """Print a pipeline warning (already throttled) on stderr."""
+    """Print a warning (the pipeline's are already throttled) on stderr."""
     print(f'{PROG}: warning: {message}', file=sys.stderr)
+
+
+def warner(quiet: bool) -> Callable[[str], None]:
+    """Return where the replay's warnings go: stderr, or nowhere with ``--quiet``."""
+    return (lambda message: None) if quiet else warn_on_stderr
 
 
 def check_outputs(args: argparse.Namespace) -> None:
@@ -145,8 +190,12 @@ def check_outputs(args: argparse.Namespace) -> None:
 def replay(args: argparse.Namespace) -> int:
     """Run the replay described by parsed arguments; return the exit code."""
     check_outputs(args)
-    config, prior_config, values = load_settings(args)
+    settings = load_settings(args)
+    config, prior_config = settings.pipeline, settings.priors
     record = ReplayRecord(live=args.live)
+    if args.output_bag is not None:
+        from laser_odom.ros.recording import MessageRecorder  # rclpy: only when asked for
+        record.messages = MessageRecorder(settings.node)
     damage: BagTruncatedError | None = None
     interrupted = False
     with BagReader(args.bag) as bag:
@@ -158,26 +207,37 @@ def replay(args: argparse.Namespace) -> int:
                 from laser_odom.tools.replay_live import run_live
                 run_live(bag.scans(topic), feed, record, args)
             else:
-                events = EventLog(warn_on_stderr)
+                events = EventLog(warner(args.quiet))
                 run_in_process(bag.scans(topic), OdometryPipeline(config, events=events),
                                feed, record, args.quiet)
         except BagTruncatedError as err:
             damage = err
         except KeyboardInterrupt:
             interrupted = True
-    write_outputs(record, args, values)
-    print_summary(record, args, topic, config.matcher if not args.live else None)
+    write_outputs(record, args)
+    problem = ''
+    try:
+        print_summary(record, args, topic, config.matcher if not args.live else None)
+    except ReplayError as err:  # e.g. a reference that hardly covers the trajectory
+        if damage is None:
+            raise
+        problem = f'; {err}'
     if damage is not None:
         raise ReplayError(f'{damage}; {len(record.stamps_ns)} scans processed'
-                          + (', outputs written' if args.tum or args.output_bag else ''))
+                          + (', outputs written' if args.tum or args.output_bag else '')
+                          + problem)
     return 130 if interrupted else 0
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``laser_odom_replay``; return the exit code."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.rate is not None and not args.live:
+        parser.error('--rate needs --live (it plays the scans to a running node)')
     try:
-        return replay(args)
+        with warnings_silenced(args.quiet):
+            return replay(args)
     except (ReplayError, BagError, ParamsFileError, OutputExistsError) as err:
         print(f'{PROG}: error: {err}', file=sys.stderr)
         return 2

@@ -1,21 +1,32 @@
 """``laser_odom_replay --live``: drive a running ``laser_odom_node`` with a bag's scans.
 
-The scans are published one at a time on the node's scan topic; after each, the
-replay waits (``--timeout``) for the node's ``nav_msgs/Odometry`` carrying that scan's
-stamp before sending the next, so the node - which keeps only the newest scan - never
-drops one for backlog. With ``--prior odom|imu`` the bag's wheel odometry / IMU
-samples up to each scan (and the first one after it) are published on the node's
-prior topics first. The time from publishing a scan to receiving its odometry is the
-round-trip latency reported. Failed and degenerate matches are read from the node's
-``/diagnostics`` (the difference between a report before the first scan and one after
-the last), because ``nav_msgs/Odometry`` does not carry a match status.
+Lock-step (the default): the scans are published one at a time on the node's scan
+topic; after each, the replay waits (``--timeout``) for the node's ``nav_msgs/Odometry``
+carrying that scan's stamp before sending the next, so the node - which keeps only the
+newest scan - never drops one for backlog, and the trajectory is the offline one. With
+``--prior odom|imu`` the bag's wheel odometry / IMU samples up to each scan (and the
+first one after it) are published on the node's prior topics first.
+
+``--rate R``: the scans and the prior samples are published in stamp order at ``R``
+times their recorded rate (:mod:`laser_odom.tools.playback`, like ``ros2 bag play
+--rate``), without waiting; the node skips the scans that arrive while it is busy, as
+it would on the robot. At the end the replay waits (``--timeout``) for the odometry of
+the last scan; the trajectory is the odometry that arrived (a skipped scan has none).
+
+The time from publishing a scan to receiving its odometry is the round-trip latency
+reported. The node's own figures are read from its ``/diagnostics`` by key (the
+difference between a report before the first scan and one after the last): scans
+received and processed, failed and degenerate matches (``nav_msgs/Odometry`` carries
+no match status), scans not processed because the node was busy, scans dropped before
+reaching it, and its receipt-to-publish latency.
 """
 
 from __future__ import annotations
 
 import argparse
+from functools import partial
 import time
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
@@ -29,10 +40,13 @@ from std_srvs.srv import Trigger
 
 from laser_odom.core import se2
 from laser_odom.core.scan import LaserScan
+from laser_odom.io.bag_reader import BagTruncatedError
 from laser_odom.ros.conversions import (
     covariance_3x3, ns_to_stamp, odometry_pose_from_msg, planar_pose_msg, scan_to_msg,
     stamp_to_ns)
+from laser_odom.ros.diagnostics import BUSY_KEY, DROPPED_KEY
 from laser_odom.ros.priors import PRIOR_TOPICS
+from laser_odom.tools.playback import play, RecordedClock
 from laser_odom.tools.replay import PriorFeed
 from laser_odom.tools.replay_report import ReplayError, ReplayRecord
 
@@ -163,6 +177,134 @@ def _count(report: dict[str, str] | None, key: str) -> int:
         return 0
 
 
+LATENCY_KEYS = ('latency median [ms]', 'latency p95 [ms]')
+"""Diagnostics keys of the node's receipt-to-publish latency."""
+
+COUNT_KEYS = {'received': 'scans received', 'processed': 'scans processed',
+              'busy': BUSY_KEY, 'dropped': DROPPED_KEY}
+"""Diagnostics keys of the counts reported for a live run (see ReplayRecord.node)."""
+
+
+def node_figures(before: dict[str, str], after: dict[str, str]) -> dict[str, Any]:
+    """Return a run's figures from the node's reports before and after it (by key)."""
+    figures: dict[str, Any] = {name: _count(after, key) - _count(before, key)
+                               for name, key in COUNT_KEYS.items()}
+    figures['latency_median_ms'], figures['latency_p95_ms'] = (
+        after.get(key, 'n/a') for key in LATENCY_KEYS)
+    return figures
+
+
+def _record_answer(record: ReplayRecord, msg: Odometry, seconds: float) -> None:
+    """Record the node's odometry of one scan, ``seconds`` after the scan was sent."""
+    stamp, pose = odometry_pose_from_msg(msg)
+    record.add(stamp, pose, covariance_3x3(msg.pose.covariance), 'received', seconds)
+    if record.messages is not None:
+        record.messages.add_received(stamp, msg)
+
+
+def _progress(record: ReplayRecord, args: argparse.Namespace) -> None:
+    """Print a progress line every 500 scans (unless --quiet)."""
+    if not args.quiet and record.scans_read % 500 == 0:
+        print(f'{record.scans_read} scans replayed (live)', flush=True)
+
+
+def _run_lock_step(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
+                   record: ReplayRecord, args: argparse.Namespace) -> None:
+    """Publish each scan and wait for its odometry before the next."""
+    for scan in scans:
+        record.scans_read += 1
+        client.publish_priors(feed, feed.advance(scan.stamp_ns))
+        sent = time.perf_counter()
+        client.scan_pub.publish(scan_to_msg(scan))
+        if client.spin_until(lambda: scan.stamp_ns in client.odometry, args.timeout):
+            msg, arrived = client.odometry.pop(scan.stamp_ns)
+            _record_answer(record, msg, arrived - sent)
+        else:
+            record.counters['no_answer'] = record.counters.get('no_answer', 0) + 1
+        _progress(record, args)
+
+
+def _prior_stamps(feed: PriorFeed) -> np.ndarray:
+    """Return the stamps of the prior samples to publish (none without odom/imu prior)."""
+    if feed.odometry_samples is not None:
+        return feed.odometry_samples.stamps_ns
+    if feed.imu_samples is not None:
+        return feed.imu_samples.stamps_ns
+    return np.zeros(0, dtype=np.int64)
+
+
+def _timeline(scans: Iterator[LaserScan], feed: PriorFeed, client: _Client,
+              record: ReplayRecord, send: Callable[[int, LaserScanMsg], None],
+              clock: RecordedClock) -> Iterator[tuple[float, Callable[[], None]]]:
+    """Yield ``(offset, publish)`` for the scans and prior samples, in stamp order.
+
+    Before each scan come the prior samples stamped up to it, each at its own time;
+    of those older than the first scan only the newest is sent (the node needs no more).
+    """
+    stamps = _prior_stamps(feed)
+    first: int | None = None
+    for scan in scans:
+        end = int(np.searchsorted(stamps, scan.stamp_ns, side='right'))
+        if first is None:
+            first = max(end - 1, 0)
+        for i in range(first, end):
+            yield clock.offset(int(stamps[i])), partial(
+                client.publish_priors, feed, range(i, i + 1))
+        first = max(first, end)
+        record.scans_read += 1
+        msg = scan_to_msg(scan)  # built before its time comes
+        yield clock.offset(scan.stamp_ns), partial(send, scan.stamp_ns, msg)
+
+
+def _run_at_rate(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
+                 record: ReplayRecord, args: argparse.Namespace) -> None:
+    """Publish the scans at ``--rate`` times their recorded rate, without waiting.
+
+    The odometry that arrived is recorded even when the bag turns out damaged or
+    the replay is interrupted.
+    """
+    sent: dict[int, float] = {}
+
+    def send(stamp_ns: int, msg: LaserScanMsg) -> None:
+        sent[stamp_ns] = time.perf_counter()
+        client.scan_pub.publish(msg)
+        _progress(record, args)
+
+    record.rate = args.rate
+    interrupted = False
+    try:
+        record.late = play(_timeline(scans, feed, client, record, send,
+                                     RecordedClock(args.rate)),
+                           wait=lambda seconds: client.spin_until(lambda: False, seconds))
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
+    finally:
+        if sent and not interrupted:
+            last = next(reversed(sent))
+            client.spin_until(lambda: last in client.odometry, args.timeout)
+        for stamp_ns, at in sent.items():
+            answer = client.odometry.pop(stamp_ns, None)
+            if answer is not None:
+                _record_answer(record, answer[0], answer[1] - at)
+        record.counters['no_answer'] = len(sent) - len(record.stamps_ns)
+
+
+def _read_report(client: _Client, before: dict[str, str] | None,
+                 record: ReplayRecord) -> None:
+    """Read the node's figures of the run from a report after its last answer."""
+    after = client.diagnostics_after(client.diagnostics_count)
+    if before is None or after is None:
+        return
+    if _count(after, 'scans processed') - _count(before, 'scans processed') < len(
+            record.stamps_ns):  # a report from before the last scan was processed
+        after = client.diagnostics_after(client.diagnostics_count) or after
+    for key, name in (('failed matches', 'rejected'),
+                      ('degenerate matches', 'degenerate')):
+        record.counters[name] = _count(after, key) - _count(before, key)
+    record.node = node_figures(before, after)
+
+
 def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
              args: argparse.Namespace) -> None:
     """Publish every scan to the node and record the odometry it answers with."""
@@ -173,24 +315,14 @@ def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
         before = client.diagnostics_after(client.diagnostics_count)
         if not args.quiet and not reset:
             print(f'--live: could not call /{args.node_name}/reset; the node keeps its pose')
-        for scan in scans:
-            record.scans_read += 1
-            client.publish_priors(feed, feed.advance(scan.stamp_ns))
-            sent = time.perf_counter()
-            client.scan_pub.publish(scan_to_msg(scan))
-            if client.spin_until(lambda: scan.stamp_ns in client.odometry, args.timeout):
-                msg, arrived = client.odometry.pop(scan.stamp_ns)
-                stamp, pose = odometry_pose_from_msg(msg)
-                record.add(stamp, pose, covariance_3x3(msg.pose.covariance), 'received',
-                           arrived - sent)
+        try:
+            if getattr(args, 'rate', None) is None:
+                _run_lock_step(client, scans, feed, record, args)
             else:
-                record.counters['no_answer'] = record.counters.get('no_answer', 0) + 1
-            if not args.quiet and record.scans_read % 500 == 0:
-                print(f'{record.scans_read} scans replayed (live)', flush=True)
-        after = client.diagnostics_after(client.diagnostics_count)
-        if before is not None and after is not None:
-            for key, name in (('failed matches', 'rejected'),
-                              ('degenerate matches', 'degenerate')):
-                record.counters[name] = _count(after, key) - _count(before, key)
+                _run_at_rate(client, scans, feed, record, args)
+        except BagTruncatedError:
+            _read_report(client, before, record)  # what was replayed still counts
+            raise
+        _read_report(client, before, record)
     finally:
         client.close()

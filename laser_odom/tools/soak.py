@@ -1,10 +1,12 @@
-"""Soak test: run many simulated scans through the pipeline and watch resident memory.
+"""``laser_odom_soak``: run many simulated scans through one pipeline and watch its memory.
 
-``python -m laser_odom.tools.soak --scans 100000`` (or ``make soak``) renders scans on
-the fly along the simulated path (nothing is accumulated), feeds them through one
-pipeline, and prints the resident set size every ``--report-every`` scans. Memory
-must not grow with the number of scans: every per-scan structure is either replaced
-(the reference scan) or bounded (timing window, event counters).
+``laser_odom_soak --scans 100000`` (or ``python -m laser_odom.tools.soak``, or
+``make soak``) renders scans on the fly along the simulated path (nothing is
+accumulated), feeds them through one pipeline, and prints the resident set size every
+``--report-every`` scans. Memory must not grow with the number of scans: every per-scan
+structure is either replaced (the reference scan) or bounded (timing window, event
+counters). Exit codes: 0 the growth after the warm-up stayed under ``--limit-mib``,
+1 it did not, 2 a bad argument (one line on stderr).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import argparse
 import os
 import sys
 import time
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, NoReturn, Sequence
 
 import numpy as np
 
@@ -22,7 +24,11 @@ from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.scan import LaserScan
-from laser_odom.core.simulation import EPOCH_NS, get_world, LaserModel, render_scan
+from laser_odom.core.simulation import (
+    EPOCH_NS, get_world, LaserModel, render_scan, world_names)
+from laser_odom.tools.simulate import _number
+
+PROG = 'laser_odom_soak'
 
 LAP_SCANS = 3000
 """Scans per cycle of precomputed poses (5 minutes at 10 Hz)."""
@@ -55,19 +61,70 @@ def scan_stream(world: str, count: int, laser: LaserModel, seed: int,
                           EPOCH_NS + index * period_ns)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (no usage block)."""
+
+    def error(self, message: str) -> NoReturn:
+        """Say what is wrong in one line on stderr and exit with status 2."""
+        self.exit(2, f'{self.prog}: error: {message} (see --help)\n')
+
+
+def _scan_count(text: str) -> int:
+    """Parse ``--scans``: an integer above the warm-up, which the baseline follows."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not an integer') from None
+    if value <= WARMUP_SCANS:
+        raise argparse.ArgumentTypeError(
+            f'{value} is too few: the memory baseline is read after {WARMUP_SCANS} warm-up '
+            f'scans, so give more than {WARMUP_SCANS}')
+    return value
+
+
+def _integer(low: int, high: int) -> Callable[[str], float]:
+    """Return an argparse type for an integer in [low, high]."""
+    return _number(int, low, high, what='integer')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line parser."""
+    p = _Parser(
+        prog=PROG, description='Run many simulated scans through one odometry pipeline and '
+        'print its resident memory as it goes; exit 1 if memory grew by more than '
+        '--limit-mib after the warm-up, 2 on a bad argument.')
+    p.add_argument('--scans', type=_scan_count, default=100_000, metavar='N',
+                   help=f'scans to run, more than the {WARMUP_SCANS} warm-up scans '
+                   '(default: 100000)')
+    p.add_argument('--matcher', default=DEFAULT_MATCHER, choices=matcher_names(),
+                   help=f'scan matcher (default: {DEFAULT_MATCHER})')
+    p.add_argument('--world', default='office', choices=world_names(),
+                   help='simulated world the scans are rendered in (default: office)')
+    p.add_argument('--beams', type=_integer(2, 100_000), default=360, metavar='N',
+                   help='beams per scan (default: 360)')
+    p.add_argument('--report-every', type=_integer(1, 10 ** 12), default=10_000, metavar='N',
+                   help='print a memory line every N scans (default: 10000)')
+    p.add_argument('--limit-mib', type=_number(float, 0.0, 1e6, True), default=20.0,
+                   metavar='MIB', help='allowed growth of resident memory after the warm-up '
+                   '[MiB]; more exits 1 (default: 20)')
+    return p
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the soak and print a memory table; exit 1 if memory grew past the limit."""
-    parser = argparse.ArgumentParser(prog='laser_odom_soak', description=__doc__.split('\n')[0])
-    parser.add_argument('--scans', type=int, default=100_000)
-    parser.add_argument('--matcher', default=DEFAULT_MATCHER, choices=matcher_names())
-    parser.add_argument('--world', default='office')
-    parser.add_argument('--beams', type=int, default=360)
-    parser.add_argument('--report-every', type=int, default=10_000)
-    parser.add_argument('--limit-mib', type=float, default=20.0,
-                        help='allowed growth of resident memory after warm-up [MiB]')
-    args = parser.parse_args(argv)
-    if args.scans <= WARMUP_SCANS:
-        parser.error(f'--scans must be more than the {WARMUP_SCANS} warm-up scans')
+    """Run the soak and print a memory table; return the exit code (see the module)."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as stop:  # --help (0) or a bad argument (2, said in one line)
+        return stop.code if isinstance(stop.code, int) else 2
+    try:
+        return soak(args)
+    except KeyboardInterrupt:
+        print(f'{PROG}: interrupted', file=sys.stderr)
+        return 130
+
+
+def soak(args: argparse.Namespace) -> int:
+    """Run the soak described by parsed arguments; return 0, or 1 if memory grew."""
     pipeline = OdometryPipeline(PipelineConfig(matcher=args.matcher),
                                 events=EventLog(lambda message: None))
     laser = LaserModel(beams=args.beams)
@@ -88,7 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     growth = resident_mib() - baseline
     counters = dict(sorted(pipeline.counters.items()))
     print(f'# resident memory growth after warm-up: {growth:.1f} MiB '
-          f'(limit {args.limit_mib:.0f} MiB); counters: {counters}')
+          f'(limit {args.limit_mib:g} MiB); counters: {counters}')
     return 0 if growth < args.limit_mib else 1
 
 

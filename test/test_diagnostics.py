@@ -1,0 +1,67 @@
+"""``/diagnostics`` wording: scans dropped before reaching the node, or not processed.
+
+Scans not processed because the node was busy are said so; the keys other programs
+read stay.
+"""
+
+from collections import Counter
+
+from diagnostic_msgs.msg import DiagnosticStatus
+import numpy as np
+
+from laser_odom.core.settings import NodeConfig
+from laser_odom.ros.diagnostics import (
+    BUSY_KEY, DiagnosticsReporter, DROPPED_KEY, ScanGapCounter, Snapshot)
+
+# Keys read by laser_odom.tools.replay_live, laser_odom.tools.bench_live and test_node.
+PARSED_KEYS = ('scans received', 'scans in', 'scans processed', 'scans skipped',
+               'failed matches', 'degenerate matches', 'latency median [ms]',
+               'latency p95 [ms]', 'skipped: skipped_backlog', 'skipped: missed_scans')
+
+
+def _status(reporter: DiagnosticsReporter, time: float, received: int,
+            **counts: int) -> tuple[DiagnosticStatus, dict[str, str]]:
+    snapshot = Snapshot(time, received, Counter(counts), np.array([0.01, 0.02]), 'nicp',
+                        'constant_velocity', '/scan', latencies=np.array([0.01, 0.03]))
+    status = reporter.status(snapshot, NodeConfig())
+    return status, {kv.key: kv.value for kv in status.values}
+
+
+def test_busy_and_dropped_scans_are_said_as_what_happened():
+    reporter = DiagnosticsReporter('laser_odom: odometry', 'base_link', 0.0)
+    status, values = _status(reporter, 1.0, 10, scans_in=10, processed=10, matched=10)
+    assert status.message == 'OK'
+    assert values[BUSY_KEY] == values[DROPPED_KEY] == values['scans skipped'] == '0'
+    status, values = _status(reporter, 2.0, 20, scans_in=15, processed=15, matched=15,
+                             skipped_backlog=5, missed_scans=3)
+    assert status.level == DiagnosticStatus.WARN
+    assert '5 scans not processed because the node was busy' in status.message
+    assert '3 scans dropped before reaching the node' in status.message
+    assert 'skipped' not in status.message and 'missed' not in status.message
+    assert BUSY_KEY == 'scans not processed because the node was busy'
+    assert DROPPED_KEY == 'scans dropped before reaching the node'
+    assert values[BUSY_KEY] == '5' and values[DROPPED_KEY] == '3'
+    for key in PARSED_KEYS:
+        assert key in values, key
+    assert values['skipped: skipped_backlog'] == '5' and values['skipped: missed_scans'] == '3'
+    assert values['scans skipped'] == '8'
+    # The next period has neither: the status recovers, the totals stay.
+    status, values = _status(reporter, 3.0, 30, scans_in=25, processed=25, matched=25,
+                             skipped_backlog=5, missed_scans=3)
+    assert status.message == 'OK' and values[BUSY_KEY] == '5'
+
+
+def test_a_repaired_scan_is_processed_not_skipped():
+    reporter = DiagnosticsReporter('laser_odom: odometry', 'base_link', 0.0)
+    status, values = _status(reporter, 1.0, 10, scans_in=10, processed=9, matched=9,
+                             length_mismatch=10, empty_scan=1, matcher_error=2)
+    assert values['scans skipped'] == '1' and values['skipped: empty_scan'] == '1'
+    assert values['length_mismatch'] == '10' and 'skipped: length_mismatch' not in values
+    assert values['matcher_error'] == '2'
+
+
+def test_gap_counter_counts_scans_dropped_on_the_way():
+    counter = ScanGapCounter(min_samples=3)
+    period = 100_000_000
+    stamps = [i * period for i in (0, 1, 2, 3, 4, 7, 8)]
+    assert [counter.missed(s, 10 * period) for s in stamps] == [0, 0, 0, 0, 0, 2, 0]
