@@ -112,7 +112,7 @@ def test_files_that_address_no_node_or_nothing_are_warned(tmp_path):
     ({'max_scan_gap': 'soon'}, ['max_scan_gap', 'must be a number']),
     ({'min_inlier_ratio': 7.0}, ['min_inlier_ratio', 'above the maximum']),
     ({'nicp.max_iterations': 2.5}, ['nicp.max_iterations', 'integer']),
-    ({'global_search': True}, ['global_search', 'must be a string']),
+    ({'global_search': True}, ['global_search', 'must be a string', 'quote the word']),
     ({'matcher': 'gicp'}, ['matcher', 'not one of']),
     ({'diagnostics_warn_failure_rate': 0.9}, ['must not exceed']),
 ])

@@ -77,11 +77,6 @@ PARAMS_FILES = {
 """Each row: a params file the issue found read differently by the node and the replay."""
 
 
-def _normalise(message: str) -> str:
-    """Drop where a value came from: the node cannot tell a file from ``-p``."""
-    return re.sub(r'^bad parameter( in \S+)?: ', 'bad parameter: ', message)
-
-
 def _node_outcome(process: NodeProcess) -> tuple:
     """Return ``(error, warnings, matcher)`` from the node's start-up output."""
     process.wait_for_output('laser odometry: matcher', 60.0)
@@ -91,7 +86,7 @@ def _node_outcome(process: NodeProcess) -> tuple:
     warnings = [line.split(']: ', 1)[1] for line in output.splitlines()
                 if line.startswith('[WARN]')]
     matcher = re.search(r'laser odometry: matcher (\w+),', output)
-    return (_normalise(errors[0]) if errors else None, sorted(warnings),
+    return (errors[0] if errors else None, sorted(warnings),
             matcher.group(1) if matcher else None)
 
 
@@ -106,7 +101,7 @@ def _replay_outcome(bag, path, capsys) -> tuple:
                 and line[len(REPLAY_WARNING):].startswith(('parameter ', 'params file '))]
     matcher = re.search(r'\((\w+)\): processed', out)
     assert (code == 2) == bool(errors), (code, err)
-    return (_normalise(errors[0]) if errors else None, sorted(warnings),
+    return (errors[0] if errors else None, sorted(warnings),
             matcher.group(1) if matcher else None)
 
 
@@ -260,6 +255,7 @@ def test_parameter_service_takes_integers_and_names_what_it_refuses(peer, node):
     result = set_value('max_scan_gap', 'soon')
     assert not result.successful and 'max_scan_gap must be a number' in result.reason
     if not extrinsic.TF2_AVAILABLE:
+        assert get_value('publish_tf').bool_value is False  # reads back what happens
         assert set_value('publish_tf', False).successful
         result = set_value('publish_tf', True)
         assert not result.successful and 'tf2_ros' in result.reason
@@ -278,3 +274,14 @@ def test_replay_quiet_silences_warnings_but_not_errors(bag, tmp_path, capsys):
     bad.write_text('/**:\n  ros__parameters:\n    max_scan_gap: soon\n')
     assert replay.main([str(bag), '--params-file', str(bad), '--quiet']) == 2
     assert 'max_scan_gap must be a number' in capsys.readouterr().err
+
+
+def test_replay_reads_the_file_for_the_node_name_it_is_given(bag, tmp_path, capsys):
+    named = tmp_path / 'named.yaml'
+    named.write_text('front_odom:\n  ros__parameters:\n    matcher: icp\n')
+    assert replay.main([str(bag), '--params-file', str(named), '--node-name', 'front_odom',
+                        '--quiet']) == 0
+    assert '(icp): processed' in capsys.readouterr().out
+    assert replay.main([str(bag), '--params-file', str(named)]) == 0
+    out, err = capsys.readouterr()
+    assert '(nicp): processed' in out and 'no section for /laser_odom' in err

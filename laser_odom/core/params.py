@@ -100,6 +100,9 @@ def check_value(name: str, value: Any, default: Any, info: ParamInfo) -> Any:
         return type(default)(value)
     if isinstance(default, str):
         value = yaml_word(value, info)
+        if isinstance(value, bool):
+            raise ParameterError(f'{name} must be a string, got {str(value).lower()} (YAML '
+                                 'reads unquoted on/off/yes/no as booleans: quote the word)')
         if not isinstance(value, str):
             raise ParameterError(f'{name} must be a string, got {value!r}')
         if info.choices is not None and value not in info.choices:

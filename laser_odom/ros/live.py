@@ -38,6 +38,19 @@ class StartupError(RuntimeError):
     """The node cannot start with the given parameters (a one-line reason)."""
 
 
+def _source(params_files: Sequence[ParamsFile], node_fqn: str) -> str:
+    """Return ``' in FILE'`` for the first params file that is bad on its own, else ''.
+
+    The replay names the file in the same words, so both say where to look.
+    """
+    for parsed in params_files:
+        try:
+            check_values(parsed.values_for(node_fqn) or {})
+        except ParameterError:
+            return f' in {parsed.path}'
+    return ''
+
+
 class LiveParameters:
     """The node's parameter values, their validation and change notification."""
 
@@ -55,12 +68,15 @@ class LiveParameters:
         self.specs = {spec.name: spec for spec in parameter_specs()}
         self.tf_mounting: LaserMounting | None = None
         overrides = getattr(node, '_parameter_overrides', {}) or {}
+        fqn = node.get_fully_qualified_name()
         try:
             given = check_values({name: p.value for name, p in overrides.items()})
         except ParameterError as error:
-            raise StartupError(f'bad parameter: {error}') from None
+            raise StartupError(f'bad parameter{_source(params_files, fqn)}: {error}') from None
         log = node.get_logger()
-        for warning in section_warnings(params_files, node.get_fully_qualified_name()):
+        if not tf_available:  # reads back as what happens (the start-up line says why)
+            given.values['publish_tf'] = False
+        for warning in section_warnings(params_files, fqn):
             log.warning(warning)
         for warning in given.warnings:
             log.warning(warning)

@@ -41,11 +41,12 @@ from std_srvs.srv import Trigger
 from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
 from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
+from laser_odom.ros import extrinsic
 from laser_odom.ros.conversions import (
     initial_pose_from_msg, matched_cloud_msg, published_messages, scan_from_msg, stamp_to_ns)
 from laser_odom.ros.diagnostics import (
     DiagnosticsReporter, ScanGapCounter, Snapshot)
-from laser_odom.ros.extrinsic import TF2_AVAILABLE, TfInterface
+from laser_odom.ros.extrinsic import TfInterface
 from laser_odom.ros.live import LiveParameters, StartupError
 from laser_odom.ros.priors import PriorInputs
 from laser_odom.ros.usage import params_file_arguments, usage, wants_help
@@ -85,7 +86,8 @@ class LaserOdomNode(Node):
     def _setup(self, params_files: Sequence[ParamsFile]) -> None:
         """Create everything the node runs with."""
         self._lock = threading.RLock()
-        self.params = LiveParameters(self, self._on_settings, params_files, TF2_AVAILABLE)
+        self.params = LiveParameters(self, self._on_settings, params_files,
+                                     extrinsic.TF2_AVAILABLE)
         settings = self.params.settings
         self._tf = TfInterface(self, settings.node.base_frame, settings.node.use_tf_extrinsic)
         self.pipeline = OdometryPipeline(

@@ -93,7 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--scan-topic-out', default='scan', help='--live: scan topic of the node')
     p.add_argument('--odom-topic-in', default='odom', help='--live: odometry topic of the node')
     p.add_argument('--node-name', default='laser_odom',
-                   help='--live: node name, for its ~/reset service and diagnostics')
+                   help='node name (with namespace, if any) the params file is read for, '
+                   'as the node reads it; --live: also the node whose ~/reset and '
+                   'diagnostics are used (default: laser_odom)')
     p.add_argument('--timeout', type=float, default=2.0,
                    help='--live: seconds to wait for the odometry of one scan (with '
                    '--rate: of the last one)')
@@ -115,7 +117,7 @@ def load_settings(args: argparse.Namespace) -> NodeSettings:
     """
     values: dict[str, Any] = {}
     if args.params_file is not None:
-        checked = read_params_files([args.params_file])
+        checked = read_params_files([args.params_file], '/' + args.node_name.strip('/'))
         for warning in checked.warnings:
             warner(args.quiet)(warning)
         values = checked.values
