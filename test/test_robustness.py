@@ -7,6 +7,7 @@ import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.config import PipelineConfig
+from laser_odom.core.deskew import DESKEW_EVENTS
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.pipeline import OdometryPipeline
@@ -17,7 +18,8 @@ from laser_odom.core.validation import REJECTIONS
 MALFORMATIONS = (
     'empty', 'nan_angle', 'inf_angle', 'zero_increment', 'span_over_2pi',
     'length_mismatch', 'bad_range_limits', 'intensities_length', 'garbage_ranges',
-    'all_invalid', 'negative_increment', 'huge_values', 'tiny_scan')
+    'all_invalid', 'negative_increment', 'huge_values', 'tiny_scan', 'nan_time_increment',
+    'negative_time_increment', 'sweep_longer_than_scan', 'no_time_increment', 'no_timing')
 
 
 def malformed_scan(rng: np.random.Generator, stamp_ns: int) -> LaserScan:
@@ -29,7 +31,8 @@ def malformed_scan(rng: np.random.Generator, stamp_ns: int) -> LaserScan:
     fields = {'stamp_ns': stamp_ns, 'angle_min': angle_min,
               'angle_max': angle_min + increment * max(n - 1, 0),
               'angle_increment': increment, 'range_min': 0.05, 'range_max': 20.0,
-              'ranges': ranges, 'intensities': None, 'frame_id': 'laser'}
+              'ranges': ranges, 'intensities': None, 'frame_id': 'laser',
+              'scan_time': 0.1, 'time_increment': 0.1 * increment / (2 * math.pi)}
     for defect in rng.choice(MALFORMATIONS, size=rng.integers(1, 4), replace=False):
         if defect == 'empty':
             fields['ranges'] = np.zeros(0)
@@ -62,6 +65,16 @@ def malformed_scan(rng: np.random.Generator, stamp_ns: int) -> LaserScan:
             fields['range_max'] = math.inf
         elif defect == 'tiny_scan':
             fields['ranges'] = ranges[:3]
+        elif defect == 'nan_time_increment':
+            fields['time_increment'] = rng.choice([math.nan, math.inf, -math.inf])
+        elif defect == 'negative_time_increment':
+            fields['time_increment'] = -fields['time_increment']
+        elif defect == 'sweep_longer_than_scan':
+            fields['time_increment'] = rng.uniform(0.2, 10.0) / max(n - 1, 1)
+        elif defect == 'no_time_increment':
+            fields['time_increment'] = 0.0
+        elif defect == 'no_timing':
+            fields['time_increment'], fields['scan_time'] = 0.0, rng.choice([0.0, math.nan])
     return LaserScan(**fields)
 
 
@@ -89,7 +102,10 @@ def assert_finite(estimate) -> None:
 def test_fuzzed_scans_never_escape_or_corrupt(matcher, count):
     rng = np.random.default_rng(sum(map(ord, matcher)))
     said = []
-    pipeline = OdometryPipeline(PipelineConfig(matcher=matcher), events=EventLog(said.append))
+    config = PipelineConfig(matcher=matcher)
+    config.scan.deskew = 'on'  # also repairs a zero time_increment from scan_time
+    # A frozen clock: within one throttle period each reason may be said only once.
+    pipeline = OdometryPipeline(config, events=EventLog(said.append, clock=lambda: 0.0))
     stamp = 1_000_000_000
     for _ in range(count):
         stamp += int(rng.integers(1, 200_000_000))
@@ -102,9 +118,11 @@ def test_fuzzed_scans_never_escape_or_corrupt(matcher, count):
     for reason in REJECTIONS:
         if reason != 'bad_ranges':
             assert counters[reason] > 0, reason
-    for warning in ('length_mismatch', 'bad_range_limits', 'intensities_length'):
-        assert counters[warning] > 0
-    assert len(said) < 200  # throttled: a handful of lines per reason, not one per scan
+    for warning in ('length_mismatch', 'bad_range_limits', 'intensities_length',
+                    *DESKEW_EVENTS):
+        assert counters[warning] > 0, warning
+    reasons = [reason for reason, count in counters.items() if count]
+    assert len(said) <= len(reasons)  # throttled: one line per reason, not one per scan
     # A good scan pair afterwards is matched correctly.
     pipeline.reset()
     scans, truth = good_scans(stamp + 1_000_000_000)

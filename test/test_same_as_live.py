@@ -30,6 +30,7 @@ import yaml
 from laser_odom.core import se2
 from laser_odom.core.scan import scan_to_points
 from laser_odom.core.simulation import simulate
+from laser_odom.core.simulation.sensors import sensor_model
 from laser_odom.io.bag_writer import canonical_cdr, write_bag
 from laser_odom.ros import extrinsic
 from laser_odom.tools import replay
@@ -44,8 +45,10 @@ TYPES = {'/odom': 'nav_msgs/msg/Odometry', '/pose': 'geometry_msgs/msg/PoseStamp
 
 @pytest.fixture(scope='module')
 def dataset():
-    """Return 4 s of the test room at 10 Hz."""
-    return simulate(TEST_WORLD, SCANS / 10.0, seed=5)
+    """Return 4 s of the test room under a 10 Hz rotating lidar (de-skewed live and offline)."""
+    data = simulate(TEST_WORLD, SCANS / 10.0, sensor_model('ld06'), seed=5)
+    assert all(scan.time_increment > 0.0 for scan in data.scans)
+    return data
 
 
 @pytest.fixture(scope='module')

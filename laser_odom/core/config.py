@@ -33,6 +33,15 @@ class ScanConfig:
 
     min_valid_points: int = param(
         20, 'Scans with fewer valid readings than this are skipped.', 3, 100000)
+    deskew: str = param(
+        'auto', 'Move every point to the instant of the scan stamp with the motion during '
+        'the sweep (rotating lidars): auto = when the scan has a time_increment, on = also '
+        'from scan_time when time_increment is 0, off = never.',
+        choices=('auto', 'on', 'off'))
+    scan_stamp: str = param(
+        'first_beam', 'Which beam the scan header stamp belongs to: first_beam (the ROS '
+        'convention) or last_beam (drivers that stamp a scan when it is complete). The '
+        'published pose is the pose at the stamp.', choices=('first_beam', 'last_beam'))
 
 
 @dataclass

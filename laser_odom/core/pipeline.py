@@ -18,6 +18,7 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.acceptance import describe_rejection, judge_match, MatchVerdict
 from laser_odom.core.config import PipelineConfig
+from laser_odom.core.deskew import deskew_change, DESKEW_EVENTS, deskewed, twist_of_step
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
@@ -34,9 +35,14 @@ OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 're
 rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
 
 EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
-    f'search_{trigger}' for trigger in SEARCH_TRIGGERS)
+    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + tuple(DESKEW_EVENTS)
 """Counters of events that do not skip the scan: a missing or dropped prior, a clock
-jump, an ambiguous match, and each reason the global search ran."""
+jump, an ambiguous match, each reason the global search ran, and sweep timing that
+was repaired or ignored."""
+
+DESKEW_TOLERANCE = 0.02
+"""Match again when the measured twist would move the de-skewed points more than this
+[m] (a bound over the sweep; below it the twist differs by less than matching noise)."""
 
 
 @dataclass
@@ -88,6 +94,7 @@ class OdometryPipeline:
         self.pose = se2.pose() if pose is None else np.array(pose, dtype=float)
         self.pose_covariance = np.zeros((3, 3)) if covariance is None else np.array(covariance)
         self.keyframe: ScanPoints | None = None
+        self.keyframe_deskewed = False
         self.keyframe_pose = self.pose.copy()
         self.keyframe_covariance = self.pose_covariance.copy()
         self.last_stamp_ns: int | None = None
@@ -147,7 +154,6 @@ class OdometryPipeline:
             guess_step = self.motion.predict(dt, prior_step, prior_yaw, self.counters)
             estimate = self._register(current, guess_step, dt, scan.stamp_ns, untrusted)
         estimate.processing_time = time.perf_counter() - started
-        estimate.scan_points = current.points
         self.processing_times.append(estimate.processing_time)
         self.counters['processed'] += 1
         self.counters[estimate.status] += 1
@@ -182,19 +188,32 @@ class OdometryPipeline:
         return self.untrusted
 
     def _initialise(self, current: ScanPoints, stamp_ns: int) -> OdometryEstimate:
-        """Take the first scan (or the first after a reset) as the reference."""
-        self._set_keyframe(current)
+        """Take the first scan (or the first after a reset) as the reference.
+
+        Its sweep motion is not known yet: it is de-skewed once the first match
+        measures the motion (:meth:`_deskew_again`).
+        """
+        self._set_keyframe(current, motion_known=False)
         return OdometryEstimate(stamp_ns, self.pose.copy(), self.pose_covariance.copy(),
-                                np.zeros(3), np.eye(3) * 1e-6, 'initialized')
+                                np.zeros(3), np.eye(3) * 1e-6, 'initialized',
+                                scan_points=current.points)
 
     def _register(self, current: ScanPoints, guess_step: se2.Pose, dt: float,
                   stamp_ns: int, untrusted: str) -> OdometryEstimate:
         """Match against the keyframe, judge the match and integrate the step."""
         guess = se2.relative(self.keyframe_pose, se2.compose(self.pose, guess_step))
+        sweep_dt = self.motion.effective_dt(dt)
+        sweep_twist = twist_of_step(guess_step, sweep_dt)
+        current = deskewed(current, sweep_twist)
+        if not self.keyframe_deskewed and deskew_change(self.keyframe, sweep_twist) > 0.0:
+            self.keyframe = deskewed(self.keyframe, sweep_twist)  # its sweep: this step
         registration = self.registrar.register(self.matcher, self.keyframe, current, guess,
                                                self.config, untrusted)
         verdict = judge_match(registration, guess, self.config, current.length_scale)
         self._say_why(registration, verdict, guess, stamp_ns)
+        if current.times is not None and verdict.status != 'rejected':
+            current, registration, verdict = self._deskew_again(
+                current, sweep_dt, registration, verdict)
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         ja, jb = se2.compose_jacobians(self.keyframe_pose, verdict.pose)
         new_covariance = (ja @ self.keyframe_covariance @ ja.T
@@ -216,13 +235,45 @@ class OdometryPipeline:
             # After a rejection the current scan becomes the reference at the predicted
             # pose: a bad prediction then costs one step, instead of misleading every
             # following match against the old reference.
-            self._set_keyframe(current)
+            self._set_keyframe(current, motion_known=verdict.status != 'rejected')
         rate_dt = self.motion.effective_dt(dt)
         twist = step / rate_dt if rate_dt > 0 else np.zeros(3)
         twist_cov = (step_covariance / (rate_dt * rate_dt) if rate_dt > 0
                      else step_covariance * 1e6)
         return OdometryEstimate(stamp_ns, new_pose, self.pose_covariance.copy(), twist,
-                                twist_cov, verdict.status, registration.match)
+                                twist_cov, verdict.status, registration.match,
+                                scan_points=current.points)
+
+    def _deskew_again(self, current: ScanPoints, sweep_dt: float,
+                      registration: Registration, verdict: MatchVerdict
+                      ) -> tuple[ScanPoints, Registration, MatchVerdict]:
+        """De-skew with the twist the match measured, and match again if it matters.
+
+        The prediction's twist was a guess (zero with ``prior: none``); the match tells
+        the motion over the step from the reference's stamp to the current one. That
+        interval holds the reference's sweep when scans are stamped at their first beam,
+        and the current sweep when stamped at the last; the other sweep is predicted
+        with the same twist (constant velocity). When the better twist moves the points
+        more than :data:`DESKEW_TOLERANCE`, or the reference has not been de-skewed with
+        a measured twist yet, both are de-skewed with it and matched again from the first
+        match, which is kept if the second is rejected.
+        """
+        step = se2.relative(self.pose, se2.compose(self.keyframe_pose, verdict.pose))
+        measured = twist_of_step(step, sweep_dt)
+        stale_reference = not self.keyframe_deskewed
+        self.keyframe_deskewed = True
+        reference_shift = deskew_change(self.keyframe, measured) if stale_reference else 0.0
+        if max(reference_shift, deskew_change(current, measured)) <= DESKEW_TOLERANCE:
+            return current, registration, verdict
+        if reference_shift > DESKEW_TOLERANCE:
+            self.keyframe = deskewed(self.keyframe, measured)
+        again_points = deskewed(current, measured)
+        again = self.registrar.register(self.matcher, self.keyframe, again_points,
+                                        verdict.pose, self.config, '')
+        second = judge_match(again, verdict.pose, self.config, again_points.length_scale)
+        if second.status == 'rejected':
+            return current, registration, verdict
+        return again_points, again, second
 
     def _say_why(self, registration: Registration, verdict: MatchVerdict, guess: se2.Pose,
                  stamp_ns: int) -> None:
@@ -267,8 +318,16 @@ class OdometryPipeline:
         return ((kf.keyframe_distance > 0.0 and moved >= kf.keyframe_distance)
                 or (kf.keyframe_angle > 0.0 and turned >= kf.keyframe_angle))
 
-    def _set_keyframe(self, current: ScanPoints) -> None:
-        """Make ``current`` the reference of the next matches."""
+    def _set_keyframe(self, current: ScanPoints, motion_known: bool = True) -> None:
+        """Make ``current`` the reference of the next matches.
+
+        ``motion_known`` says whether it was de-skewed with a measured motion (not the
+        first scan, not a rejected match). A scan whose sweep follows its stamp (stamped
+        at the first beam) was swept during the step to the next scan, so its motion is
+        only measured by the next match: that match de-skews it again.
+        """
         self.keyframe = current
+        sweeps_after_stamp = current.times is not None and float(np.median(current.times)) > 0
+        self.keyframe_deskewed = motion_known and not sweeps_after_stamp
         self.keyframe_pose = self.pose.copy()
         self.keyframe_covariance = self.pose_covariance.copy()

@@ -76,6 +76,9 @@ class ScanPoints:
     ``beam_index`` holds each point's index in the original ``ranges`` array, so
     matchers that need beam adjacency (PL-ICP) can tell true neighbours from points
     that are adjacent only because invalid beams between them were dropped.
+    ``times`` [s, relative to the stamp] are the beams' measurement times when the scan
+    is de-skewed; ``measured`` then holds the points as measured, and ``twist`` the
+    twist they were de-skewed with (:mod:`laser_odom.core.deskew`).
     """
 
     points: np.ndarray
@@ -83,6 +86,9 @@ class ScanPoints:
     ranges: np.ndarray
     stamp_ns: int = 0
     cache: dict[Any, Any] = field(default_factory=dict, repr=False)
+    times: np.ndarray | None = None
+    measured: np.ndarray | None = None
+    twist: np.ndarray | None = None
 
     def __len__(self) -> int:
         """Return the number of points."""
@@ -160,9 +166,11 @@ def densify(scan: ScanPoints, spacing: float, max_gap: float,
                                   np.einsum('nd,nd->n', a, b)))
         nearer = np.minimum(scan.ranges[:-1], scan.ranges[1:])
         limit = np.maximum(limit, gap_per_range * nearer * apart)
-    on_surface = (np.diff(scan.beam_index) == 1) & (length < limit)
+    on_surface = (np.diff(scan.beam_index) == 1) & (length < limit) & np.isfinite(length)
     spacing = max(spacing, float(length[on_surface].sum()) / MAX_DENSE_POINTS)
-    inserted = np.where(on_surface, np.ceil(length / spacing - 1e-9).astype(int) - 1, 0)
+    per_segment = np.minimum(length / spacing, MAX_DENSE_POINTS)  # no int overflow
+    inserted = np.where(on_surface,
+                        np.maximum(np.ceil(per_segment - 1e-9).astype(int) - 1, 0), 0)
     owner = np.repeat(np.arange(len(segment)), inserted)
     rank = np.arange(int(inserted.sum())) - np.repeat(np.cumsum(inserted) - inserted, inserted)
     fraction = (rank + 1.0) / (inserted[owner] + 1.0)

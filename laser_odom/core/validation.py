@@ -4,7 +4,9 @@ A sensor driver, a bag or a simulator can hand over anything: NaN angles, a zero
 increment, more ranges than the angle fields announce, inverted range limits. Each
 check below either rejects the scan with a reason (counted, and said in a throttled
 warning) or repairs what can be repaired and says so once. Beam count, field of view
-and frame may change from one scan to the next; every scan is judged on its own.
+and frame may change from one scan to the next; every scan is judged on its own. The
+sweep timing (``time_increment``, ``scan_time``) is judged by
+:func:`laser_odom.core.deskew.sweep_times`.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import math
 import numpy as np
 
 from laser_odom.core.config import MountingConfig, ScanConfig
+from laser_odom.core.deskew import sweep_times
 from laser_odom.core.events import EventLog
 from laser_odom.core.scan import LaserScan, scan_to_points, ScanPoints
 
@@ -67,6 +70,10 @@ class ScanValidator:
         points = scan_to_points(usable, self.mounting)
         if len(points) < self.config.min_valid_points:
             return None, 'too_few_points'
+        times = sweep_times(scan, ranges.size, self.config.deskew,
+                            self.config.scan_stamp == 'last_beam', self.events)
+        if times is not None:
+            points.times = times[points.beam_index]
         return points, ''
 
     def _check_length(self, scan: LaserScan, count: int) -> None:

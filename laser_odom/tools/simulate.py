@@ -3,6 +3,8 @@
 The bag holds ``/scan`` (sensor_msgs/LaserScan), ``/ground_truth`` (nav_msgs/Odometry,
 the true base pose at every scan, frame ``map``) and ``/odom`` (noisy wheel odometry,
 frame ``odom``); the ground truth is also written as a TUM file beside the bag.
+``--sensor`` picks a lidar preset (:mod:`laser_odom.core.simulation.sensors`); the
+laser options given on the command line override the preset's figures.
 Everything is deterministic for a given ``--seed``.
 """
 
@@ -18,8 +20,8 @@ import numpy as np
 
 from laser_odom.core.scan import LaserMounting
 from laser_odom.core.simulation import (
-    DEFAULT_MOTION, DEFAULT_WORLD, LaserModel, MOTIONS, ODOMETRY_RATE, OdometryNoise, simulate,
-    world_names)
+    DEFAULT_MOTION, DEFAULT_SENSOR, DEFAULT_WORLD, LaserModel, MOTIONS, ODOMETRY_RATE,
+    OdometryNoise, sensor_model, sensor_names, SENSORS, simulate, STAMP_AT, world_names)
 from laser_odom.io.bag_writer import STORAGES, write_bag
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.tum import write_tum
@@ -44,9 +46,24 @@ def _number(kind: type, low: float, high: float, low_open: bool = False,
     return parse
 
 
+LASER_OPTIONS = {'beams': 'beams', 'fov': 'fov', 'max_range': 'max_range',
+                 'min_range': 'min_range', 'noise': 'noise_sigma', 'dropout': 'dropout',
+                 'rate': 'rate'}
+"""Command-line laser options (``None`` unless given) and the model fields they set."""
+
+
+def _sensor_help() -> str:
+    """Return the ``--sensor`` help: every preset with its figures."""
+    presets = '; '.join(f'{name}: {preset.description}' for name, preset in SENSORS.items())
+    return (f'lidar preset (default: {DEFAULT_SENSOR}). {presets}. All but ideal sweep their '
+            'beams over one revolution per scan while the robot moves; --beams, --fov, '
+            '--max-range, --min-range, --noise, --dropout and --rate override the preset')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     defaults = LaserModel()
+    preset = ' (default: from --sensor; ideal: {})'
     p = argparse.ArgumentParser(
         prog=PROG, description='Simulate a robot driving a 2D world and write a ROS 2 bag '
         'with /scan, /ground_truth and /odom, plus the ground truth as a TUM file.')
@@ -62,20 +79,31 @@ def build_parser() -> argparse.ArgumentParser:
                    'truth goes too) (default: 0)')
     p.add_argument('--duration', type=_number(float, 0.0, 1e6, True), default=60.0,
                    metavar='S', help='simulated time [s] (default: 60)')
-    p.add_argument('--beams', type=_number(int, 2, 100000, what='integer'),
-                   default=defaults.beams, metavar='N', help='beams per scan (default: 360)')
-    p.add_argument('--fov', type=_number(float, 0.0, 360.0, True), default=360.0,
-                   metavar='DEG', help='field of view [deg] (default: 360)')
-    p.add_argument('--max-range', type=_number(float, 0.0, 1e4, True),
-                   default=defaults.max_range, metavar='M', help='max range [m] (default: 20)')
-    p.add_argument('--min-range', type=_number(float, 0.0, 1e4), default=defaults.min_range,
-                   metavar='M', help='min range [m] (default: 0.05)')
-    p.add_argument('--noise', type=_number(float, 0.0, 10.0), default=defaults.noise_sigma,
-                   metavar='SIGMA', help='range noise std. dev. [m] (default: 0.01)')
-    p.add_argument('--dropout', type=_number(float, 0.0, 1.0), default=defaults.dropout,
-                   metavar='P', help='probability of a NaN reading (default: 0)')
-    p.add_argument('--rate', type=_number(float, 0.0, 1000.0, True), default=defaults.rate,
-                   metavar='HZ', help='scan rate [Hz] (default: 10)')
+    p.add_argument('--sensor', default=DEFAULT_SENSOR, choices=sensor_names(),
+                   help=_sensor_help())
+    p.add_argument('--reverse-sweep', action='store_true',
+                   help='the lidar sweeps clockwise, as some drivers publish: negative '
+                   'angle_increment, first beam at the highest angle')
+    p.add_argument('--stamp-at', choices=STAMP_AT, default='first',
+                   help='which beam the scan stamp belongs to: first (the ROS drivers) or '
+                   'last; the ground truth is the pose at the stamp; no effect with the '
+                   'instantaneous ideal sensor (default: first)')
+    p.add_argument('--beams', type=_number(int, 2, 100000, what='integer'), default=None,
+                   metavar='N', help='beams per scan' + preset.format(defaults.beams))
+    p.add_argument('--fov', type=_number(float, 0.0, 360.0, True), default=None,
+                   metavar='DEG', help='field of view [deg]' + preset.format(360))
+    p.add_argument('--max-range', type=_number(float, 0.0, 1e4, True), default=None,
+                   metavar='M', help='max range [m]' + preset.format(f'{defaults.max_range:g}'))
+    p.add_argument('--min-range', type=_number(float, 0.0, 1e4), default=None,
+                   metavar='M', help='min range [m]' + preset.format(defaults.min_range))
+    p.add_argument('--noise', type=_number(float, 0.0, 10.0), default=None,
+                   metavar='SIGMA', help='range noise std. dev. [m]'
+                   + preset.format(defaults.noise_sigma))
+    p.add_argument('--dropout', type=_number(float, 0.0, 1.0), default=None,
+                   metavar='P', help='probability of a NaN reading'
+                   + preset.format(f'{defaults.dropout:g}'))
+    p.add_argument('--rate', type=_number(float, 0.0, 1000.0, True), default=None,
+                   metavar='HZ', help='scan rate [Hz]' + preset.format(f'{defaults.rate:g}'))
     p.add_argument('--odom-rate', type=_number(float, 0.0, 10000.0, True),
                    default=ODOMETRY_RATE, metavar='HZ', help='wheel odometry rate [Hz] '
                    '(default: 50)')
@@ -105,21 +133,32 @@ def _fail(message: str) -> int:
     return 2
 
 
+def laser_from_args(args: argparse.Namespace) -> LaserModel:
+    """Return the ``--sensor`` preset with the laser options given on the command line."""
+    overrides = {field: getattr(args, option) for option, field in LASER_OPTIONS.items()
+                 if getattr(args, option) is not None}
+    if 'fov' in overrides:
+        overrides['fov'] = math.radians(overrides['fov'])
+    return sensor_model(args.sensor, reverse=args.reverse_sweep, stamp_at=args.stamp_at,
+                        **overrides)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the simulator; return the exit code (2 for usage and input errors)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.min_range >= args.max_range:
-        parser.error('--min-range must be smaller than --max-range')
+    try:
+        laser = laser_from_args(args)
+    except ValueError as error:
+        if 'min_range' in str(error):
+            parser.error('--min-range must be smaller than --max-range')
+        parser.error(str(error))
     out: Path = args.out
     if out.exists() or out.is_symlink():
         return _fail(f'{out} exists already; not overwriting it')
     tum: Path = args.tum if args.tum is not None else out.with_name(out.name + '.tum')
     if tum.exists() or tum.is_symlink():
         return _fail(f'{tum} exists already; not overwriting it')
-    laser = LaserModel(beams=args.beams, fov=math.radians(args.fov), max_range=args.max_range,
-                       min_range=args.min_range, noise_sigma=args.noise, dropout=args.dropout,
-                       rate=args.rate)
     mounting = LaserMounting(args.laser_x, args.laser_y, args.laser_yaw, args.laser_upside_down)
     data = simulate(args.world, args.duration, laser, args.seed, mounting,
                     OdometryNoise().scaled(args.odom_noise), args.odom_rate,
@@ -137,8 +176,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         + (' upside down' if mounting.upside_down else ''))
     motion = '' if args.motion == DEFAULT_MOTION else f', {args.motion} motion'
     dropped = f', {args.drop:.0%} dropped' if args.drop > 0.0 else ''
+    sensor = '' if args.sensor == DEFAULT_SENSOR else f'{args.sensor}, '
+    clockwise = 'clockwise ' if laser.reverse else ''
+    sweep = (f', {laser.sweep_time * 1e3:.4g} ms {clockwise}sweep' if laser.sweep
+             else f', {clockwise}instantaneous' if laser.reverse else '') + (
+        ' stamped at the last beam' if laser.sweep and laser.stamp_at == 'last' else '')
     print(f'wrote {out}: {len(data.scans)} scans ({args.world}{motion}, {args.duration:g} s, '
-          f'{args.beams} beams{laser_on_base}{dropped}, {driven:.1f} m driven), '
+          f'{sensor}{laser.beams} beams{sweep}{laser_on_base}{dropped}, '
+          f'{driven:.1f} m driven), '
           f'{len(data.odometry)} odometry, ground truth {tum}')
     return 0
 

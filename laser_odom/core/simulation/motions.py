@@ -9,7 +9,10 @@
   to 1.5 m/s^2 and turning at up to 2 rad/s.
 
 A profile maps times to poses (``poses_at``), like :class:`SmoothPath`, which the
-simulator samples at the scan and odometry stamps.
+simulator samples at the scan and odometry stamps and, for a sweeping lidar, at the
+time of every beam. :class:`ConstantTwist` is a known motion for tests (a constant
+speed and turn rate), which :func:`~laser_odom.core.simulation.simulate` accepts in
+place of a profile name.
 """
 
 from __future__ import annotations
@@ -131,6 +134,33 @@ class SpinningPath:
         poses = self.path.poses_at(np.interp(times, grid, clock))
         poses[:, 2] = se2.wrap_angle(poses[:, 2] + np.interp(times, grid, heading))
         return poses
+
+
+@dataclass(frozen=True)
+class ConstantTwist:
+    """Driving at a constant forward speed and turn rate from a start pose (exact arcs).
+
+    A known motion for tests: ``v`` [m/s] along the heading, ``w`` [rad/s] about z,
+    from ``start`` ``[x, y, heading]`` at time 0 (also before it: negative times run
+    the motion backwards).
+    """
+
+    v: float = 0.0
+    w: float = 0.0
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def poses_at(self, times: np.ndarray) -> np.ndarray:
+        """Return the (N, 3) poses at ``times`` [s] from the start."""
+        t = np.asarray(times, dtype=float).reshape(-1)
+        x0, y0, h0 = self.start
+        heading = h0 + self.w * t
+        if self.w == 0.0:
+            dx, dy = self.v * t * math.cos(h0), self.v * t * math.sin(h0)
+        else:
+            radius = self.v / self.w
+            dx = radius * (np.sin(heading) - math.sin(h0))
+            dy = radius * (math.cos(h0) - np.cos(heading))
+        return np.column_stack((x0 + dx, y0 + dy, se2.wrap_angle(heading)))
 
 
 def motion_profile(world: World, name: str = DEFAULT_MOTION) -> Motion:

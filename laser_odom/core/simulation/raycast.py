@@ -46,14 +46,19 @@ def cast_rays(origin: np.ndarray, angles: np.ndarray, segments: np.ndarray,
     return np.minimum(ranges, t.min(axis=1))
 
 
-def _segments_within(origin: np.ndarray, segments: np.ndarray, radius: float) -> np.ndarray:
-    """Tell which segments come within ``radius`` of ``origin`` (point-segment distance)."""
+def _segment_distances(origin: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Return each segment's distance to ``origin`` (2,), or to its row's origin (M, 2)."""
     a = segments[:, 0:2] - origin
     e = segments[:, 2:4] - segments[:, 0:2]
     length2 = np.maximum(np.einsum('mi,mi->m', e, e), 1e-300)
     u = np.clip(-np.einsum('mi,mi->m', a, e) / length2, 0.0, 1.0)
     closest = a + u[:, None] * e
-    return np.hypot(closest[:, 0], closest[:, 1]) <= radius
+    return np.hypot(closest[:, 0], closest[:, 1])
+
+
+def _segments_within(origin: np.ndarray, segments: np.ndarray, radius: float) -> np.ndarray:
+    """Tell which segments come within ``radius`` of ``origin`` (point-segment distance)."""
+    return _segment_distances(origin, segments) <= radius
 
 
 def cast_fan(origin: np.ndarray, start: float, increment: float, count: int,
@@ -112,3 +117,103 @@ def cast_fan(origin: np.ndarray, start: float, increment: float, count: int,
     hit = valid & (t > 0.0) & (u >= 0.0) & (u <= 1.0)
     np.minimum.at(ranges, beam[hit], t[hit])
     return ranges
+
+
+ANGLE_MARGIN = 1e-9
+"""Slack [rad] on the angular interval of a segment, against rounding in the culling."""
+
+
+def cast_rays_from(origins: np.ndarray, angles: np.ndarray, segments: np.ndarray,
+                   max_range: float = np.inf) -> np.ndarray:
+    """Return the distance along each ray from its own origin to the nearest segment.
+
+    Ray ``i`` starts at ``origins[i]`` (B, 2) and heads along the world angle
+    ``angles[i]`` (B,): the beams of a scan taken while the robot moves. The result
+    equals :func:`cast_rays` ``(origins[i], [angles[i]], segments, max_range)`` for
+    every ``i`` (segments entirely beyond ``max_range`` of a ray's origin are skipped
+    for that ray, ``inf`` when nothing is hit), computed only for the (ray, segment)
+    pairs that can meet: seen from the origins' centroid ``c``, a segment at distance
+    ``d`` covers an interval of directions, and a ray from an origin within ``s`` of
+    ``c`` can only meet it within ``asin(s / d)`` of that interval. The per-ray
+    arithmetic is that of :func:`cast_fan`, so rays sharing one origin give the same
+    ranges as the fan.
+    """
+    o = np.asarray(origins, dtype=float).reshape(-1, 2)
+    phi = np.asarray(angles, dtype=float).reshape(-1)
+    if o.shape[0] != phi.shape[0]:
+        raise ValueError(f'{o.shape[0]} origins for {phi.shape[0]} rays')
+    seg = np.asarray(segments, dtype=float).reshape(-1, 4)
+    count = phi.shape[0]
+    ranges = np.full(count, np.inf)
+    if count == 0 or len(seg) == 0:
+        return ranges
+    centre = o.mean(axis=0)
+    spread = float(np.max(np.hypot(o[:, 0] - centre[0], o[:, 1] - centre[1])))
+    dist = _segment_distances(centre, seg)
+    border = np.zeros(len(seg), dtype=bool)
+    if np.isfinite(max_range):
+        slack = spread + ANGLE_MARGIN * max(1.0, max_range)
+        near = dist <= max_range + slack
+        seg, dist = seg[near], dist[near]
+        border = dist > max_range - slack
+        if len(seg) == 0:
+            return ranges
+    beam, owner = _candidate_pairs(centre, spread, dist, phi, seg)
+    if np.any(border):
+        check = border[owner]
+        keep = ~check
+        keep[check] = _segment_distances(o[beam[check]], seg[owner[check]]) <= max_range
+        beam, owner = beam[keep], owner[keep]
+    ox, oy = o[beam, 0], o[beam, 1]
+    ax, ay = seg[owner, 0] - ox, seg[owner, 1] - oy
+    bx, by = seg[owner, 2] - ox, seg[owner, 3] - oy
+    ex, ey = bx - ax, by - ay
+    dx, dy = np.cos(phi)[beam], np.sin(phi)[beam]
+    denom = dx * ey - dy * ex
+    valid = np.abs(denom) > PARALLEL_EPS * np.hypot(ex, ey)
+    safe = np.where(valid, denom, 1.0)
+    t = (ax * ey - ay * ex) / safe
+    u = (ax * dy - ay * dx) / safe
+    hit = valid & (t > 0.0) & (u >= 0.0) & (u <= 1.0)
+    np.minimum.at(ranges, beam[hit], t[hit])
+    return ranges
+
+
+def _candidate_pairs(centre: np.ndarray, spread: float, dist: np.ndarray, angles: np.ndarray,
+                     segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the (ray, segment) index pairs of rays whose direction can meet the segment.
+
+    Each segment's interval of directions seen from ``centre`` is widened by
+    ``asin(spread / dist)``; segments closer than ``spread`` (or seen across about
+    pi, i.e. passing next to ``centre``) are paired with every ray. The rays are sorted
+    by direction so each interval is two ``searchsorted`` look-ups.
+    """
+    two_pi = 2.0 * np.pi
+    ax, ay = segments[:, 0] - centre[0], segments[:, 1] - centre[1]
+    bx, by = segments[:, 2] - centre[0], segments[:, 3] - centre[1]
+    phi_a, phi_b = np.arctan2(ay, ax), np.arctan2(by, bx)
+    sweep = (phi_b - phi_a + np.pi) % two_pi - np.pi
+    low = np.where(sweep >= 0.0, phi_a, phi_b)
+    ratio = np.divide(spread, dist, out=np.full(dist.shape, np.inf), where=dist > 0.0)
+    margin = np.arcsin(np.minimum(ratio, 1.0)) + ANGLE_MARGIN
+    width = np.abs(sweep) + 2.0 * margin
+    every = (np.abs(sweep) > np.pi - 1e-9) | (ratio >= 1.0) | (width >= two_pi)
+    wrapped = np.mod(angles, two_pi)
+    order = np.argsort(wrapped, kind='stable')
+    sorted_angles = wrapped[order]
+    part = np.flatnonzero(~every)
+    start = np.mod(low[part] - margin[part], two_pi)
+    end = start + width[part]
+    total = len(angles)
+    first = np.concatenate((np.searchsorted(sorted_angles, start, side='left'),
+                            np.zeros(len(part), dtype=np.int64),
+                            np.zeros(int(every.sum()), dtype=np.int64)))
+    last = np.concatenate((np.searchsorted(sorted_angles, end, side='right'),
+                           np.searchsorted(sorted_angles, end - two_pi, side='right'),
+                           np.full(int(every.sum()), total, dtype=np.int64)))
+    owner = np.concatenate((part, part, np.flatnonzero(every)))
+    sizes = np.maximum(last - first, 0)
+    pairs = int(sizes.sum())
+    offsets = np.cumsum(sizes) - sizes
+    rank = np.repeat(first - offsets, sizes) + np.arange(pairs)
+    return order[rank], np.repeat(owner, sizes)

@@ -1,0 +1,159 @@
+"""De-skewing rotating lidars: the math, the timing rules, and the gain through the pipeline."""
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.deskew import (
+    beam_times, DESKEW_EVENTS, move_points, sweep_times, twist_of_step)
+from laser_odom.core.events import EventLog
+from laser_odom.core.metrics import evaluate
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.scan import LaserScan, scan_to_points
+from laser_odom.core.simulation import get_world, simulate
+from laser_odom.core.simulation.laser import render_swept_scan
+from laser_odom.core.simulation.motions import ConstantTwist
+from laser_odom.core.simulation.sensors import sensor_model
+from laser_odom.core.trajectory import Trajectory
+
+TWIST = np.array([0.4, 0.0, 1.5])
+"""Forward at 0.4 m/s while turning at 1.5 rad/s (ConstantTwist's base-frame twist)."""
+MOTION = ConstantTwist(0.4, 1.5, (2.0, 1.0, 0.3))
+
+
+def _wall_distance(world, pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Return each base-frame point's distance to the nearest wall of ``world``."""
+    p = se2.transform_points(pose, points)
+    a, b = world.segments[:, :2], world.segments[:, 2:]
+    ab = b - a
+    t = np.clip(np.einsum('pnd,nd->pn', p[:, None, :] - a[None], ab)
+                / np.einsum('nd,nd->n', ab, ab), 0.0, 1.0)
+    nearest = a[None] + t[..., None] * ab[None]
+    return np.min(np.linalg.norm(p[:, None] - nearest, axis=2), axis=1)
+
+
+def test_moving_points_is_the_se2_exponential_of_the_twist():
+    rng = np.random.default_rng(1)
+    points = rng.uniform(-5.0, 5.0, (50, 2))
+    times = rng.uniform(-0.2, 0.2, 50)
+    start = MOTION.poses_at(np.array([0.0]))[0]
+    later = MOTION.poses_at(times)
+    expected = np.array([se2.transform_points(se2.relative(start, pose), p[None])[0]
+                         for pose, p in zip(later, points)])
+    np.testing.assert_allclose(move_points(points, times, TWIST), expected, atol=1e-12)
+    # twist_of_step inverts it: the twist that moves the base by a step in dt.
+    step = se2.relative(start, MOTION.poses_at(np.array([0.2]))[0])
+    np.testing.assert_allclose(twist_of_step(step, 0.2), TWIST, atol=1e-12)
+    assert np.all(twist_of_step(step, 0.0) == 0.0)
+
+
+@pytest.mark.parametrize('stamp_at, reverse', [('first', False), ('last', False),
+                                               ('first', True)])
+def test_a_scan_swept_during_a_known_turn_is_recovered_to_a_millimetre(stamp_at, reverse):
+    world = get_world('office')
+    laser = sensor_model('lds01', noise_sigma=0.0, max_range=8.0, stamp_at=stamp_at,
+                         reverse=reverse)
+    scan = render_swept_scan(world, MOTION, 0.0, laser)
+    points = scan_to_points(scan)
+    times = sweep_times(scan, len(scan.ranges), 'auto', stamp_at == 'last', EventLog())
+    pose = MOTION.poses_at(np.array([0.0]))[0]  # the base at the stamp
+    skewed = _wall_distance(world, pose, points.points)
+    straight = _wall_distance(world, pose, move_points(points.points,
+                                                       times[points.beam_index], TWIST))
+    assert skewed.max() > 0.1  # the turn bends the scan by decimetres ...
+    assert straight.max() < 0.001  # ... and de-skewing puts every point back on its wall
+
+
+def _scan(**timing) -> LaserScan:
+    return LaserScan(0, -math.pi, math.pi - 2 * math.pi / 360, 2 * math.pi / 360, 0.1, 10.0,
+                     np.ones(360), **timing)
+
+
+@pytest.mark.parametrize('timing, mode, expected, event', [
+    ({'time_increment': 1e-4, 'scan_time': 0.1}, 'auto', 'forward', None),
+    ({'time_increment': 1e-4, 'scan_time': 0.1}, 'off', None, None),
+    ({'time_increment': 0.0, 'scan_time': 0.1}, 'auto', None, None),
+    ({'time_increment': 0.0, 'scan_time': 0.1}, 'on', 'repaired', 'time_increment_repaired'),
+    ({'time_increment': 0.0, 'scan_time': 0.0}, 'on', None, 'sweep_timing_missing'),
+    ({'time_increment': -1e-4, 'scan_time': 0.1}, 'auto', 'reversed',
+     'time_increment_reversed'),
+    ({'time_increment': math.nan, 'scan_time': 0.1}, 'auto', None, 'time_increment_invalid'),
+    ({'time_increment': 1e-3, 'scan_time': 0.1}, 'auto', None, 'time_increment_invalid'),
+    ({'time_increment': 1e-2, 'scan_time': 0.0}, 'auto', None, 'time_increment_invalid'),
+    ({'time_increment': 1e-4, 'scan_time': 0.0}, 'auto', 'forward', None),
+])
+def test_odd_time_increments_are_repaired_where_clear_and_ignored_otherwise(
+        timing, mode, expected, event):
+    said = []
+    events = EventLog(said.append)
+    for _ in range(3):
+        times = sweep_times(_scan(**timing), 360, mode, False, events)
+    if expected is None:
+        assert times is None
+    else:
+        increment = {'forward': 1e-4, 'reversed': 1e-4, 'repaired': 0.1 / 360}[expected]
+        order = np.arange(360) if expected != 'reversed' else np.arange(360)[::-1]
+        np.testing.assert_allclose(times, order * increment)
+    if event is None:
+        assert said == []
+    else:
+        assert events.counters[event] == 3 and len(said) == 1  # counted, said once
+        assert event in DESKEW_EVENTS
+    # Stamped at the last beam, the times end at zero.
+    np.testing.assert_allclose(beam_times(4, 0.5, True), [-1.5, -1.0, -0.5, 0.0])
+
+
+def _run(dataset, matcher: str, deskew: str) -> tuple[float, float]:
+    """Return (mean rotational RPE [deg], ATE [m]) of one pipeline run."""
+    config = PipelineConfig(matcher=matcher)
+    config.scan.deskew = deskew
+    pipeline = OdometryPipeline(config, events=EventLog(lambda _: None))
+    stamps, poses = [], []
+    for scan in dataset.scans:
+        estimate = pipeline.process(scan)
+        if estimate is not None:
+            stamps.append(estimate.stamp_ns)
+            poses.append(estimate.pose)
+    errors = evaluate(Trajectory(np.array(stamps), np.array(poses)), dataset.reference)
+    return errors.rpe_rot_mean, errors.ate_rms
+
+
+@pytest.fixture(scope='module', params=['lds01', 'rplidar_a1'])
+def turning(request):
+    """12 s of driving at 0.3 m/s while turning at 1.5 rad/s under a cheap lidar."""
+    return simulate('office', 12.0, sensor_model(request.param),
+                    motion=ConstantTwist(0.3, 1.5, (1.0, 0.5, 0.0)), seed=1)
+
+
+@pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
+def test_deskewing_cuts_rotational_error_and_ate_of_cheap_lidars_turning(turning, matcher):
+    rpe_off, ate_off = _run(turning, matcher, 'off')
+    rpe_on, ate_on = _run(turning, matcher, 'auto')
+    assert rpe_on <= 0.3 * rpe_off, (rpe_on, rpe_off)
+    assert ate_on <= 0.5 * ate_off, (ate_on, ate_off)
+
+
+def test_a_fast_lidar_gains_little_and_loses_nothing():
+    data = simulate('office', 8.0, sensor_model('ust10lx'),
+                    motion=ConstantTwist(0.3, 1.5, (1.0, 0.5, 0.0)), seed=2)
+    rpe_off, ate_off = _run(data, 'nicp', 'off')
+    rpe_on, ate_on = _run(data, 'nicp', 'auto')
+    assert rpe_on <= rpe_off * 1.05 and ate_on <= ate_off * 1.05 + 0.002
+
+
+def test_logs_without_sweep_timing_give_identical_results(real_log):
+    data = real_log('fr079').every(1, 'fr079')
+    data.scans = data.scans[:300]
+    assert all(scan.time_increment == 0.0 for scan in data.scans)
+    runs = []
+    for deskew in ('off', 'auto'):
+        config = PipelineConfig(matcher='nicp')
+        config.scan.deskew = deskew
+        pipeline = OdometryPipeline(config, events=EventLog(lambda _: None))
+        runs.append(np.array([e.pose for e in map(pipeline.process, data.scans)
+                              if e is not None]))
+    assert runs[0].shape == (300, 3)
+    assert np.array_equal(runs[0], runs[1])
