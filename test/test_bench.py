@@ -156,3 +156,35 @@ def test_live_table_says_busy_and_dropped_in_the_diagnostics_wording():
     legend = format_live([row], 1081, 40.0, 60.0)
     assert 'busy: scans not processed because the node was busy' in legend
     assert 'dropped: scans dropped before reaching the node' in legend
+
+
+def test_grid_is_left_out_by_default_and_selected_by_name():
+    loaders = {name: (lambda: None) for name in ('sim-office-360', *bench.GRIDS['deskew'])}
+    grid = list(bench.GRIDS['deskew'])
+    assert len(grid) == 17 and {'sim-lds01-turning', 'sim-tim571-aggressive'} <= set(grid)
+
+    def names(*argv: str) -> list[str]:
+        return bench.dataset_names(bench.parse_args(list(argv)), loaders)
+
+    assert names() == ['sim-office-360']
+    assert names('--grid', 'deskew') == grid
+    assert names('--datasets', 'sim-office-360', '--grid', 'deskew') == ['sim-office-360'] + grid
+    assert names('--datasets', 'sim-ld06-spin') == ['sim-ld06-spin']
+
+
+def test_deskew_rows_on_a_fast_turn_with_a_slow_lidar(tmp_path, capsys):
+    out = tmp_path / 'rows.json'
+    assert main(['--datasets', 'sim-rplidar_a1-turning', '--matchers', 'nicp', '--priors',
+                 'constant_velocity', '--deskew', 'off,auto', '--no-progress',
+                 '--no-search-table', '--json', str(out)]) == 0
+    header = capsys.readouterr().out.splitlines()[1].split()
+    assert header[:4] == ['dataset', 'matcher', 'prior', 'deskew']
+    off, auto = json.loads(out.read_text())['rows']
+    assert (off['deskew'], auto['deskew']) == ('off', 'auto')
+    assert off['steps'] == auto['steps'] >= 100 and off['failed'] == auto['failed'] == 0
+    # Turning at 1.5 rad/s under a 5.5 Hz sweep bends every scan by about 16 degrees.
+    assert auto['rpe_rot_mean'] < 0.3 * off['rpe_rot_mean']
+    assert auto['ate'] < 0.5 * off['ate']
+    assert main(['--datasets', 'sim-office-360', '--deskew', 'sometimes',
+                 '--no-progress']) == 2
+    assert 'unknown deskew value: sometimes' in capsys.readouterr().err

@@ -19,11 +19,12 @@ from laser_odom.core.config import (
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
 from laser_odom.core.metrics import evaluate
+from laser_odom.core.params import param_info
 from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.priors import PriorConfig, PriorFeed
 from laser_odom.core.runner import run_pipeline
 from laser_odom.core.search import correlative_search
-from laser_odom.core.simulation import LaserModel, simulate
+from laser_odom.core.simulation import ConstantTwist, LaserModel, simulate
 from laser_odom.core.trajectory import Dataset, Trajectory
 from laser_odom.core.validation import ScanValidator
 
@@ -37,6 +38,12 @@ DEFAULT_BENCH_PRIORS = ('none', 'constant_velocity', 'odom')
 
 WHEEL_ODOMETRY = 'wheel_odometry'
 """Pseudo-matcher name of the row that scores raw wheel odometry alone."""
+
+NOT_APPLICABLE = '-'
+"""The ``deskew`` of a row the setting does not apply to (the wheel odometry row)."""
+
+DESKEW_MODES: tuple[str, ...] = tuple(param_info(ScanConfig, 'deskew').choices or ())
+"""The pipeline's ``deskew`` values (``laser_odom_bench --deskew``)."""
 
 WARMUP_SCANS = 10
 """Scans at the start of a run left out of the timing statistics (caches, imports)."""
@@ -80,6 +87,62 @@ and the office at 10 Hz with a fifth of the scans dropped, driven gently, spinni
 place (3 rad/s) and aggressively (1.5 m/s)."""
 
 
+@dataclass(frozen=True)
+class SensorSpec:
+    """A simulated dataset of a sensor preset: world, motion, duration, seed."""
+
+    sensor: str
+    motion: str | ConstantTwist = 'gentle'
+    duration: float = 60.0
+    world: str = 'office'
+    seed: int = 1
+
+    def generate(self, name: str) -> Dataset:
+        """Simulate the dataset (deterministic for the spec)."""
+        dataset = simulate(self.world, duration=self.duration, sensor=self.sensor,
+                           seed=self.seed, motion=self.motion)
+        dataset.name = name
+        return dataset
+
+
+GRID_SENSORS = ('lds01', 'rplidar_a1', 'ld06', 'ust10lx', 'tim571')
+"""The rotating lidars of the de-skew grid (:mod:`laser_odom.core.simulation.sensors`)."""
+
+GRID_MOTIONS = ('gentle', 'spin', 'aggressive')
+"""The motion profiles of the de-skew grid."""
+
+GRID_DURATION = 60.0
+"""Seconds of a grid dataset: 300-900 scans at 5-15 Hz."""
+
+GRID_DURATIONS = {'ust10lx': 20.0}
+"""Shorter grid datasets: the UST-10LX at 40 Hz makes 800 scans in 20 s."""
+
+TURNING = ConstantTwist(v=0.3, w=1.5, start=(1.0, 0.5, 0.0))
+"""Turning at 1.5 rad/s at 0.3 m/s (a 0.2 m circle about a free spot of the office)."""
+
+TURNING_SENSORS = ('lds01', 'rplidar_a1')
+"""The slow lidars driven :data:`TURNING` in the de-skew grid."""
+
+TURNING_DURATION = 20.0
+"""Seconds of a turning dataset: 100-110 scans, almost five turns."""
+
+
+def deskew_grid() -> dict[str, SensorSpec]:
+    """Return the sensor x motion grid, ``sim-SENSOR-MOTION``, and the turning datasets."""
+    grid = {f'sim-{sensor}-{motion}': SensorSpec(
+        sensor, motion, GRID_DURATIONS.get(sensor, GRID_DURATION))
+        for sensor in GRID_SENSORS for motion in GRID_MOTIONS}
+    grid.update({f'sim-{sensor}-turning': SensorSpec(sensor, TURNING, TURNING_DURATION)
+                 for sensor in TURNING_SENSORS})
+    return grid
+
+
+GRIDS: dict[str, dict[str, SensorSpec]] = {'deskew': deskew_grid()}
+"""Groups of datasets a benchmark run leaves out unless asked (``--grid``): ``deskew``
+is the rotating lidars driven ``gentle``, ``spin`` and ``aggressive`` and turning at
+1.5 rad/s, to be run with de-skewing on and off."""
+
+
 @dataclass
 class BenchRow:
     """One benchmark row: a dataset x matcher x prior and its figures."""
@@ -87,6 +150,8 @@ class BenchRow:
     dataset: str
     matcher: str
     prior: str
+    deskew: str
+    """The pipeline's ``deskew`` setting (``-`` for the wheel odometry row)."""
     beams: int
     scans: int
     steps: int
@@ -105,7 +170,7 @@ class BenchRow:
         return asdict(self)
 
 
-def _row(dataset: Dataset, matcher: str, prior: str, estimate: Trajectory,
+def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Trajectory,
          times: np.ndarray, rejected: int) -> BenchRow:
     """Score an estimated trajectory against the dataset's reference."""
     errors = evaluate(estimate, dataset.reference)
@@ -113,26 +178,35 @@ def _row(dataset: Dataset, matcher: str, prior: str, estimate: Trajectory,
     median_ms = float(np.median(timed) * 1e3) if timed.size else float('nan')
     p95_ms = float(np.percentile(timed, 95) * 1e3) if timed.size else float('nan')
     beams = len(dataset.scans[0].ranges) if dataset.scans else 0
-    return BenchRow(dataset.name, matcher, prior, beams, len(dataset.scans), errors.steps,
-                    errors.rpe_trans_mean, errors.rpe_trans_rms, errors.rpe_rot_mean,
+    return BenchRow(dataset.name, matcher, prior, deskew, beams, len(dataset.scans),
+                    errors.steps, errors.rpe_trans_mean, errors.rpe_trans_rms, errors.rpe_rot_mean,
                     errors.rpe_rot_rms, errors.ate_rms, errors.failed_steps, rejected,
                     median_ms, p95_ms)
 
 
 def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocity',
                   progress: Callable[[int], None] | None = None,
-                  config: PipelineConfig | None = None) -> BenchRow:
-    """Run the pipeline with ``matcher`` and bench ``prior`` over a dataset and score it."""
+                  config: PipelineConfig | None = None,
+                  deskew: str | None = None) -> BenchRow:
+    """Run the pipeline with ``matcher`` and bench ``prior`` over a dataset and score it.
+
+    ``deskew`` overrides the configuration's ``deskew`` setting when given.
+    """
     if config is None:
         config = PipelineConfig(matcher=matcher, matcher_config=default_config(matcher))
     config.motion.prior = BENCH_PRIORS[prior]
+    if deskew is not None:
+        if deskew not in DESKEW_MODES:
+            raise ValueError(f'unknown deskew value {deskew!r}; valid: '
+                             f'{", ".join(DESKEW_MODES)}')
+        config.scan.deskew = deskew
     pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
     feed = None
     if prior == 'odom':
         feed = PriorFeed('odom', PriorConfig(), odometry=dataset.odometry)
     result = run_pipeline(pipeline, dataset.scans, priors=feed, progress=progress)
-    return _row(dataset, matcher, prior, result.trajectory, result.processing_times,
-                result.counters['rejected'])
+    return _row(dataset, matcher, prior, config.scan.deskew, result.trajectory,
+                result.processing_times, result.counters['rejected'])
 
 
 def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:
@@ -151,8 +225,8 @@ def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:
 
 def wheel_odometry_row(dataset: Dataset) -> BenchRow:
     """Score raw wheel odometry alone: the do-nothing baseline for every matcher."""
-    return _row(dataset, WHEEL_ODOMETRY, 'odom', wheel_odometry_trajectory(dataset),
-                np.zeros(0), 0)
+    return _row(dataset, WHEEL_ODOMETRY, 'odom', NOT_APPLICABLE,
+                wheel_odometry_trajectory(dataset), np.zeros(0), 0)
 
 
 SEARCH_PAIRS = 50

@@ -1,9 +1,11 @@
 """``laser_odom_bench``: score every matcher for accuracy and speed in one table.
 
-Rows are dataset x matcher x prior. Datasets are the simulated ones (generated here)
-plus every real dataset found under ``--data-dir``. Timing is taken inside this process
-around the whole per-scan work of the pipeline (conversion, tree build, matching),
-after a warm-up.
+Rows are dataset x matcher x prior x deskew setting. Datasets are the simulated ones
+(generated here) plus every real dataset found under ``--data-dir``; ``--grid deskew``
+adds (or, without ``--datasets``, runs only) the simulated rotating lidars driven
+``gentle``, ``spin``, ``aggressive`` and turning, which are left out by default.
+Timing is taken inside this process around the whole per-scan work of the pipeline
+(conversion, tree build, matching), after a warm-up.
 
 A progress bar is drawn on stderr only when stderr is a terminal (never into a pipe or
 a log file); ``--quiet`` leaves it out and silences warnings too (see
@@ -22,13 +24,13 @@ from pathlib import Path
 import platform
 import sys
 import time
-from typing import Any, Callable, Sequence, TextIO
+from typing import Any, Callable, Mapping, Sequence, TextIO
 
 import numpy as np
 
 from laser_odom.core.benchmark import (
-    BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, search_timing,
-    SearchTimingRow, SIMULATED, wheel_odometry_row)
+    BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
+    search_timing, SearchTimingRow, SIMULATED, wheel_odometry_row)
 from laser_odom.core.config import GlobalSearchConfig, pipeline_config_from_params
 from laser_odom.core.datasets import (
     DatasetError, discover_datasets, load_dataset, subsampled_datasets)
@@ -45,8 +47,9 @@ DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data
 """``../shared/data`` beside a source checkout, the project's real logs."""
 
 COLUMNS = [
-    ('dataset', 21, None, 'dataset'), ('matcher', 14, None, 'matcher'),
-    ('prior', 17, None, 'prior'), ('beams', 5, None, 'beams'), ('steps', 5, None, 'steps'),
+    ('dataset', 25, None, 'dataset'), ('matcher', 14, None, 'matcher'),
+    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'), ('beams', 5, None, 'beams'),
+    ('steps', 5, None, 'steps'),
     ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
     ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
     ('ate', 7, 3, 'ATE'), ('failed', 6, None, 'failed'),
@@ -95,9 +98,10 @@ def _columns(rows: Sequence, columns: list, text_columns: int) -> list[str]:
 
 def format_table(rows: Sequence[BenchRow]) -> str:
     """Return the rows as a fixed-width text table with units in the legend."""
-    return '\n'.join(_columns(rows, COLUMNS, 3) + [
+    return '\n'.join(_columns(rows, COLUMNS, 4) + [
         '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
-        'alignment; failed: RPE > 0.5 m or > 10 deg'])
+        'alignment; failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
+        '(auto: on when the scans have a time_increment)'])
 
 
 class ProgressBar:
@@ -136,15 +140,28 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help='comma-separated matcher names (default: all)')
     parser.add_argument('--datasets', default=None,
                         help='comma-separated dataset names (default: all simulated and '
-                             'every real dataset found)')
+                             'every real dataset found, except the --grid datasets)')
+    parser.add_argument('--grid', default=None, metavar='LIST',
+                        help='comma-separated groups of datasets to add, left out by '
+                             'default (without --datasets: run only them). The group '
+                             'deskew is the simulated rotating lidars (lds01, rplidar_a1, '
+                             'ld06, ust10lx, tim571) in the office driven gentle, spin and '
+                             'aggressive, sim-SENSOR-MOTION (60 s; ust10lx 20 s), and '
+                             'sim-lds01-turning, sim-rplidar_a1-turning (0.3 m/s, '
+                             '1.5 rad/s, 20 s)')
     parser.add_argument('--priors', default=','.join(DEFAULT_BENCH_PRIORS),
                         help='comma-separated priors: none, constant_velocity, odom '
                              '(default: all three)')
+    parser.add_argument('--deskew', default=None, metavar='LIST',
+                        help='comma-separated deskew values (auto, on, off): every row runs '
+                             'with each, shown in the deskew column (default: auto, or the '
+                             "--params-file's deskew)")
     parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA_DIR,
                         help='folder holding the real logs (default: ../shared/data)')
     parser.add_argument('--params-file', type=Path, default=None, metavar='YAML',
                         help="the node's parameter file: every row runs with its settings "
-                             '(except matcher and prior, which each row sets)')
+                             '(except matcher and prior, which each row sets, and deskew '
+                             'when --deskew is given)')
     parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
     parser.add_argument('--no-progress', action='store_true',
                         help='no progress bar (it is drawn on stderr only when stderr is '
@@ -175,13 +192,15 @@ def _split(text: str, valid: Sequence[str], what: str) -> list[str]:
 
 
 def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
-    """Return name -> loader for every simulated and every real dataset found.
+    """Return name -> loader for every simulated (grids too) and every real dataset found.
 
     Subsampled datasets (``fr079/5``) share one load of their base log.
     """
+    specs = {**SIMULATED, **{name: spec for grid in GRIDS.values()
+                             for name, spec in grid.items()}}
     loaders: dict[str, Callable[[], Dataset]] = {
         name: (lambda name=name, spec=spec: spec.generate(name))
-        for name, spec in SIMULATED.items()}
+        for name, spec in specs.items()}
     if data_dir.is_dir():
         found = discover_datasets(data_dir)
         for name, path in found.items():
@@ -192,8 +211,23 @@ def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
     return loaders
 
 
+def dataset_names(args: argparse.Namespace, loaders: Mapping[str, object]) -> list[str]:
+    """Return the datasets to run: ``--datasets`` (default: all but grids), then ``--grid``."""
+    grids = _split(args.grid, list(GRIDS), 'grid') if args.grid else []
+    if args.datasets:
+        names = _split(args.datasets, list(loaders), 'dataset')
+    elif grids:
+        names = []
+    else:
+        in_grids = {name for grid in GRIDS.values() for name in grid}
+        names = [name for name in loaders if name not in in_grids]
+    for grid in grids:
+        names += _split(','.join(GRIDS[grid]), list(loaders), 'dataset')
+    return list(dict.fromkeys(names))
+
+
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
-    """Run every selected dataset x matcher x prior; return the rows and search timings."""
+    """Run every selected dataset x matcher x prior x deskew; return rows, search timings."""
     loaders = dataset_loaders(args.data_dir)
     values: dict[str, Any] = {}
     if args.params_file is not None:
@@ -203,7 +237,10 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
             LOGGER.warning('laser_odom_bench: warning: %s', warning)
     matchers = _split(args.matchers, matcher_names(), 'matcher')
     priors = _split(args.priors, list(BENCH_PRIORS), 'prior')
-    names = _split(args.datasets, list(loaders), 'dataset') if args.datasets else list(loaders)
+    deskews: list[str | None] = (
+        list(dict.fromkeys(_split(args.deskew, DESKEW_MODES, 'deskew value')))
+        if args.deskew is not None else [None])
+    names = dataset_names(args, loaders)
     rows: list[BenchRow] = []
     searches: list[SearchTimingRow] = []
     progress = progress_wanted(args)
@@ -216,18 +253,19 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
             for prior in priors:
                 if prior == 'odom' and not has_odometry:
                     continue
-                label = f'{name} {matcher} {prior}'
-                bar = ProgressBar(label, len(dataset.scans)) if progress else None
-                config = pipeline_config_from_params({**values, 'matcher': matcher})
-                rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
-                                          config=config))
+                for deskew in deskews:
+                    label = f'{name} {matcher} {prior}' + (f' {deskew}' if deskew else '')
+                    bar = ProgressBar(label, len(dataset.scans)) if progress else None
+                    config = pipeline_config_from_params({**values, 'matcher': matcher})
+                    rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
+                                              config=config, deskew=deskew))
         if not args.no_search_table:
             searches.append(search_timing(dataset))
     return rows, searches
 
 
 SEARCH_COLUMNS = [
-    ('dataset', 21, None, 'dataset'), ('beams', 5, None, 'beams'),
+    ('dataset', 25, None, 'dataset'), ('beams', 5, None, 'beams'),
     ('searches', 8, None, 'searches'), ('median_ms', 7, 2, 'med ms'),
     ('p95_ms', 7, 2, 'p95 ms'), ('grid_ms', 7, 2, 'grid ms'), ('tree_ms', 7, 2, 'tree ms'),
     ('nodes', 7, None, 'nodes'), ('exhaustive', 10, 2, 'exhaustive'),
