@@ -25,6 +25,7 @@ setup(
     description='2D laser odometry (ICP, PL-ICP, NICP, IMLS-ICP) for ROS 2',
     license='Apache-2.0',
     tests_require=['pytest'],
+    extras_require={'tools': ['optuna', 'matplotlib']},
     entry_points={
         'console_scripts': [
             'laser_odom_node = laser_odom.ros.node:main',
@@ -33,6 +34,7 @@ setup(
             'laser_odom_convert = laser_odom.tools.convert:main',
             'laser_odom_bench = laser_odom.tools.bench:main',
             'laser_odom_soak = laser_odom.tools.soak:main',
+            'laser_odom_tune = laser_odom.tools.tune:main',
         ],
     },
 )

@@ -12,10 +12,12 @@ import sys
 import warnings
 
 import numpy as np
+import pytest
 
 from laser_odom.core.simulation import simulate
 from laser_odom.tools import bench
 from laser_odom.tools.bench import main
+from laser_odom.tools.simulate import main as simulate_main
 
 
 def test_params_file_applies_to_every_row_and_the_search_table_is_printed(tmp_path, capsys):
@@ -188,3 +190,72 @@ def test_deskew_rows_on_a_fast_turn_with_a_slow_lidar(tmp_path, capsys):
     assert main(['--datasets', 'sim-office-360', '--deskew', 'sometimes',
                  '--no-progress']) == 2
     assert 'unknown deskew value: sometimes' in capsys.readouterr().err
+
+
+@pytest.fixture(scope='module')
+def user_bag(tmp_path_factory) -> Path:
+    """Simulate 10 s of the office (100 scans, /odom, /ground_truth) and its TUM file."""
+    bag = tmp_path_factory.mktemp('bench_bag') / 'my_robot'
+    assert simulate_main([str(bag), '--duration', '10']) == 0
+    return bag
+
+
+def test_bag_with_its_reference_is_a_dataset_with_wheel_odometry(user_bag, tmp_path, capsys):
+    out = tmp_path / 'rows.json'
+    assert main(['--bag', str(user_bag), '--reference', str(user_bag) + '.tum', '--matchers',
+                 'icp', '--priors', 'constant_velocity,odom', '--no-progress',
+                 '--no-search-table', '--json', str(out)]) == 0
+    table = capsys.readouterr().out
+    rows = {(row['matcher'], row['prior']): row for row in json.loads(out.read_text())['rows']}
+    assert set(rows) == {('wheel_odometry', 'odom'), ('icp', 'constant_velocity'),
+                         ('icp', 'odom')}
+    assert {row['dataset'] for row in rows.values()} == {'my_robot'}
+    for key in (('icp', 'constant_velocity'), ('icp', 'odom')):
+        row = rows[key]
+        assert row['steps'] == 99 and row['failed'] == 0 and row['ate'] < 0.05
+        assert row['median_ms'] > 0.0
+    assert rows[('wheel_odometry', 'odom')]['ate'] > rows[('icp', 'odom')]['ate']
+    assert 'my_robot' in table and 'wheel_odometry' in table and 'n/a' in table
+
+
+def test_bag_without_reference_is_timed_only(user_bag, tmp_path, capsys):
+    from laser_odom.io.bag_reader import BagReader
+    from laser_odom.io.bag_writer import write_bag
+    with BagReader(user_bag) as bag:  # the same scans and /odom, no /ground_truth
+        scans, odometry = list(bag.scans())[:30], bag.odometry('/odom')
+    plain = tmp_path / 'plain'
+    write_bag(plain, scans, odometry={'/odom': odometry})
+    out = tmp_path / 'rows.json'
+    assert main(['--bag', str(plain), '--matchers', 'nicp', '--priors', 'odom',
+                 '--no-progress', '--no-search-table', '--json', str(out)]) == 0
+    table = capsys.readouterr().out
+    row, = json.loads(out.read_text())['rows']
+    assert (row['dataset'], row['matcher'], row['failed'], row['steps']) == (
+        'plain', 'nicp', None, 0)
+    assert np.isnan(row['ate']) and row['median_ms'] > 0.0
+    assert 'n/a: no reference for plain' in table
+
+
+def test_bad_bag_is_one_line_and_exit_2(user_bag, tmp_path, capsys):
+    from laser_odom.io.bag_writer import write_bag
+    from laser_odom.io.tum import read_tum, write_tum
+    no_scans = tmp_path / 'no_scans'
+    write_bag(no_scans, [], odometry={'/odom': read_tum(str(user_bag) + '.tum')})
+    later = read_tum(str(user_bag) + '.tum')
+    later.stamps_ns = later.stamps_ns + 3_600 * 10**9  # an hour after the bag
+    other_clock = tmp_path / 'later.tum'
+    write_tum(other_clock, later)
+    cases = [
+        (['--bag', str(tmp_path / 'missing')], 'bag not found'),
+        (['--bag', str(no_scans)], 'no LaserScan topic'),
+        (['--bag', str(user_bag), '--reference', str(other_clock)], 'does not overlap'),
+        (['--bag', str(user_bag), '--reference', str(tmp_path / 'none.tum')],
+         'reference file not found'),
+        (['--bag', str(user_bag), '--reference', '-', '--reference', 'x.tum'],
+         'the i-th --reference belongs to the i-th --bag'),
+    ]
+    for argv, text in cases:
+        assert main(argv + ['--matchers', 'icp', '--no-progress']) == 2, argv
+        captured = capsys.readouterr()
+        assert captured.err.count('\n') == 1 and text in captured.err, captured.err
+        assert captured.err.startswith('laser_odom_bench: error: ') and captured.out == ''

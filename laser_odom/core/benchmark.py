@@ -160,7 +160,8 @@ class BenchRow:
     rpe_rot_mean: float
     rpe_rot_rms: float
     ate: float
-    failed: int
+    failed: int | None
+    """Failed steps; None (``n/a``) when the dataset has no reference to score against."""
     rejected: int
     median_ms: float
     p95_ms: float
@@ -170,18 +171,29 @@ class BenchRow:
         return asdict(self)
 
 
+Accuracy = tuple[int, float, float, float, float, float, int | None]
+"""Steps, RPE translation mean and RMS, rotation mean and RMS, ATE, failed steps."""
+
+
+def _accuracy(estimate: Trajectory, reference: Trajectory) -> Accuracy:
+    """Score against the reference; without one (a user's bag) 0 steps, NaN, failed None."""
+    if len(reference) == 0:
+        nan = float('nan')
+        return 0, nan, nan, nan, nan, nan, None
+    errors = evaluate(estimate, reference)
+    return (errors.steps, errors.rpe_trans_mean, errors.rpe_trans_rms, errors.rpe_rot_mean,
+            errors.rpe_rot_rms, errors.ate_rms, errors.failed_steps)
+
+
 def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Trajectory,
          times: np.ndarray, rejected: int) -> BenchRow:
-    """Score an estimated trajectory against the dataset's reference."""
-    errors = evaluate(estimate, dataset.reference)
+    """Score an estimated trajectory against the dataset's reference (if it has one)."""
     timed = times[WARMUP_SCANS:] if times.size > 2 * WARMUP_SCANS else times
     median_ms = float(np.median(timed) * 1e3) if timed.size else float('nan')
     p95_ms = float(np.percentile(timed, 95) * 1e3) if timed.size else float('nan')
     beams = len(dataset.scans[0].ranges) if dataset.scans else 0
     return BenchRow(dataset.name, matcher, prior, deskew, beams, len(dataset.scans),
-                    errors.steps, errors.rpe_trans_mean, errors.rpe_trans_rms, errors.rpe_rot_mean,
-                    errors.rpe_rot_rms, errors.ate_rms, errors.failed_steps, rejected,
-                    median_ms, p95_ms)
+                    *_accuracy(estimate, dataset.reference), rejected, median_ms, p95_ms)
 
 
 def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocity',

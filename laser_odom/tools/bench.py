@@ -7,6 +7,13 @@ adds (or, without ``--datasets``, runs only) the simulated rotating lidars drive
 Timing is taken inside this process around the whole per-scan work of the pipeline
 (conversion, tree build, matching), after a warm-up.
 
+``--bag PATH`` (repeatable) adds the user's own bags as datasets, named after the bag's
+directory or file: their scans, their ``/odom`` wheel odometry (the ``odom`` prior and
+the ``wheel_odometry`` row) and a reference - the i-th ``--reference REF.tum``, or else
+the bag's ``/ground_truth`` Odometry topic. Without ``--datasets`` or ``--grid`` only
+the bags run. A bag without any reference is timed only: its accuracy columns and
+``failed`` are ``n/a`` (NaN and null in ``--json``), and it has no wheel odometry row.
+
 A progress bar is drawn on stderr only when stderr is a terminal (never into a pipe or
 a log file); ``--quiet`` leaves it out and silences warnings too (see
 :func:`warnings_silenced`), while errors are still printed.
@@ -24,20 +31,23 @@ from pathlib import Path
 import platform
 import sys
 import time
-from typing import Any, Callable, Mapping, Sequence, TextIO
+from typing import Any, Callable, Collection, Mapping, Sequence, TextIO
 
 import numpy as np
 
 from laser_odom.core.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    search_timing, SearchTimingRow, SIMULATED, wheel_odometry_row)
+    search_timing, SearchTimingRow, SIMULATED, WHEEL_ODOMETRY, wheel_odometry_row)
 from laser_odom.core.config import GlobalSearchConfig, pipeline_config_from_params
 from laser_odom.core.datasets import (
     DatasetError, discover_datasets, load_dataset, subsampled_datasets)
 from laser_odom.core.matchers import matcher_names
+from laser_odom.core.metrics import associate
 from laser_odom.core.params import ParameterError
-from laser_odom.core.trajectory import Dataset
+from laser_odom.core.trajectory import Dataset, Trajectory
+from laser_odom.io.bag_reader import BagError, BagReader, LASER_SCAN, ODOMETRY
 from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.io.tum import read_tum
 from laser_odom.tools.quiet import warnings_silenced
 
 LOGGER = logging.getLogger('laser_odom.tools.bench')
@@ -56,6 +66,15 @@ COLUMNS = [
     ('median_ms', 7, 2, 'med ms'), ('p95_ms', 7, 2, 'p95 ms'),
 ]
 """Table columns: row field, width, decimals (None: as is), title."""
+
+BAG_ODOMETRY = '/odom'
+"""The wheel odometry topic of a ``--bag``."""
+
+BAG_GROUND_TRUTH = '/ground_truth'
+"""The reference topic of a ``--bag`` given no ``--reference``."""
+
+NO_REFERENCE = '-'
+"""A ``--reference`` that gives its bag none (the bag's ``/ground_truth``, if any)."""
 
 
 def cpu_name() -> str:
@@ -77,7 +96,9 @@ def machine_line() -> str:
 
 
 def _cell(value: object, width: int, decimals: int | None) -> str:
-    """Format one table cell: text left-aligned, numbers right-aligned."""
+    """Format one table cell: text left-aligned, numbers right-aligned, n/a for no value."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return f'{"n/a":>{width}}'
     if isinstance(value, str):
         return f'{value:<{width}}'
     if decimals is None:
@@ -98,10 +119,14 @@ def _columns(rows: Sequence, columns: list, text_columns: int) -> list[str]:
 
 def format_table(rows: Sequence[BenchRow]) -> str:
     """Return the rows as a fixed-width text table with units in the legend."""
+    unscored = sorted({row.dataset for row in rows if row.failed is None
+                       and row.matcher != WHEEL_ODOMETRY})
     return '\n'.join(_columns(rows, COLUMNS, 4) + [
         '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
         'alignment; failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
-        '(auto: on when the scans have a time_increment)'])
+        '(auto: on when the scans have a time_increment)'] + (
+        [f'# n/a: no reference for {", ".join(unscored)} (--bag without --reference or '
+         f'{BAG_GROUND_TRUTH}): timed only'] if unscored else []))
 
 
 class ProgressBar:
@@ -156,6 +181,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help='comma-separated deskew values (auto, on, off): every row runs '
                              'with each, shown in the deskew column (default: auto, or the '
                              "--params-file's deskew)")
+    parser.add_argument('--bag', action='append', default=[], metavar='PATH',
+                        help='a ROS 1 or ROS 2 bag of your own as a dataset, named after '
+                             'its directory or file (repeatable): its LaserScan topic, '
+                             f'{BAG_ODOMETRY} as wheel odometry if present. Without '
+                             '--datasets or --grid only the bags run')
+    parser.add_argument('--reference', action='append', default=[], metavar='REF.tum',
+                        help='reference TUM file of the i-th --bag (repeatable; '
+                             f"{NO_REFERENCE!r}: none). Default: the bag's "
+                             f'{BAG_GROUND_TRUTH} Odometry topic; without either the bag '
+                             'is timed only (accuracy n/a)')
     parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA_DIR,
                         help='folder holding the real logs (default: ../shared/data)')
     parser.add_argument('--params-file', type=Path, default=None, metavar='YAML',
@@ -211,19 +246,94 @@ def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
     return loaders
 
 
-def dataset_names(args: argparse.Namespace, loaders: Mapping[str, object]) -> list[str]:
-    """Return the datasets to run: ``--datasets`` (default: all but grids), then ``--grid``."""
+def bag_name(path: str, taken: Collection[str]) -> str:
+    """Return a dataset name for a bag: its directory or file name, made unique."""
+    bag = Path(path)
+    base = (bag.name if bag.is_dir() else bag.stem) or str(bag)
+    name, number = base, 1
+    while name in taken:
+        number += 1
+        name = f'{base}-{number}'
+    return name
+
+
+def _bag_reference(reference: str | None) -> Trajectory | None:
+    """Read a ``--reference`` TUM file (None for none); ValueError in one line."""
+    if reference is None or reference == NO_REFERENCE:
+        return None
+    if not Path(reference).is_file():
+        raise ValueError(f'reference file not found: {reference}')
+    return read_tum(reference)
+
+
+def _check_overlap(dataset: Dataset, source: str) -> None:
+    """Raise ValueError when the reference pairs with fewer than two scans in time."""
+    stamps = np.array([scan.stamp_ns for scan in dataset.scans], dtype=np.int64)
+    paired = len(associate(Trajectory(stamps, np.zeros((len(stamps), 3))),
+                           dataset.reference)[0])
+    if paired < 2:
+        raise ValueError(f'reference {source} does not overlap bag {dataset.name} in time: '
+                         f'it pairs with {paired} of {len(stamps)} scans (stamps within '
+                         '10 ms)')
+
+
+def load_bag_dataset(path: str, name: str, reference: str | None = None) -> Dataset:
+    """Read a bag's scans, ``/odom`` and reference (``--reference``, else ``/ground_truth``).
+
+    Raises ValueError or :class:`BagError` (one line) for a missing bag, a bag without
+    scans and a reference that does not overlap the scans in time.
+    """
+    truth = _bag_reference(reference)
+    with BagReader(path) as bag:
+        scans = list(bag.scans(bag.select_topic(LASER_SCAN)))
+        if len(scans) < 2:
+            raise ValueError(f'{path}: {len(scans)} scans; a benchmark needs a bag with scans')
+        odometry = (bag.odometry(BAG_ODOMETRY) if bag.topics.get(BAG_ODOMETRY) == ODOMETRY
+                    else Trajectory())
+        if truth is None and bag.topics.get(BAG_GROUND_TRUTH) == ODOMETRY:
+            truth, reference = bag.odometry(BAG_GROUND_TRUTH), f'{path}:{BAG_GROUND_TRUTH}'
+    dataset = Dataset(name, scans, odometry, truth if truth is not None else Trajectory())
+    if truth is not None:
+        _check_overlap(dataset, str(reference))
+    return dataset
+
+
+def bag_loaders(bags: Sequence[str], references: Sequence[str],
+                taken: Collection[str]) -> dict[str, Callable[[], Dataset]]:
+    """Read every ``--bag`` now (bad input fails before the runs); name -> loader.
+
+    The i-th reference belongs to the i-th bag; names avoid those in ``taken``.
+    """
+    if len(references) > len(bags):
+        raise ValueError(f'{len(references)} --reference for {len(bags)} --bag: the i-th '
+                         '--reference belongs to the i-th --bag')
+    loaders: dict[str, Callable[[], Dataset]] = {}
+    for index, path in enumerate(bags):
+        name = bag_name(path, [*taken, *loaders])
+        reference = references[index] if index < len(references) else None
+        dataset = load_bag_dataset(path, name, reference)
+        loaders[name] = lambda dataset=dataset: dataset
+    return loaders
+
+
+def dataset_names(args: argparse.Namespace, loaders: Mapping[str, object],
+                  bags: Sequence[str] = ()) -> list[str]:
+    """Return the datasets to run: ``--datasets`` (default: all but grids), ``--grid``, bags.
+
+    ``bags`` are the names of the ``--bag`` datasets: with them, and neither
+    ``--datasets`` nor ``--grid``, only they run.
+    """
     grids = _split(args.grid, list(GRIDS), 'grid') if args.grid else []
     if args.datasets:
         names = _split(args.datasets, list(loaders), 'dataset')
-    elif grids:
+    elif grids or bags:
         names = []
     else:
         in_grids = {name for grid in GRIDS.values() for name in grid}
         names = [name for name in loaders if name not in in_grids]
     for grid in grids:
         names += _split(','.join(GRIDS[grid]), list(loaders), 'dataset')
-    return list(dict.fromkeys(names))
+    return list(dict.fromkeys(names + list(bags)))
 
 
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
@@ -240,14 +350,16 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
     deskews: list[str | None] = (
         list(dict.fromkeys(_split(args.deskew, DESKEW_MODES, 'deskew value')))
         if args.deskew is not None else [None])
-    names = dataset_names(args, loaders)
+    bags = bag_loaders(args.bag, args.reference, loaders)
+    loaders.update(bags)
+    names = dataset_names(args, loaders, list(bags))
     rows: list[BenchRow] = []
     searches: list[SearchTimingRow] = []
     progress = progress_wanted(args)
     for name in names:
         dataset = loaders[name]()
         has_odometry = len(dataset.odometry) > 0
-        if 'odom' in priors and has_odometry:
+        if 'odom' in priors and has_odometry and len(dataset.reference):
             rows.append(wheel_odometry_row(dataset))
         for matcher in matchers:
             for prior in priors:
@@ -297,7 +409,7 @@ def main_offline(args: argparse.Namespace) -> int:
     """Run the offline benchmark and print its tables."""
     try:
         rows, searches = run(args)
-    except (DatasetError, ParamsFileError, ParameterError, ValueError) as err:
+    except (DatasetError, ParamsFileError, ParameterError, ValueError, BagError) as err:
         print(f'laser_odom_bench: error: {err}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:

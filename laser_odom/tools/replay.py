@@ -9,7 +9,8 @@ times their recorded rate without waiting), and its ``odom`` answers are recorde
 :mod:`laser_odom.tools.replay_live`).
 
 Outputs: ``--tum`` (one line per processed scan, written atomically), ``--output-bag``
-(``/odom`` with covariance and ``/pose``), and a summary; ``--reference`` adds how many
+(``/odom`` with covariance and ``/pose``), ``--plot`` (a PNG, :mod:`laser_odom.tools.plots`),
+and a summary; ``--reference`` adds how many
 poses it pairs with, ATE and RPE (:mod:`laser_odom.core.metrics`), and is an input
 error when it pairs with less than ``--min-coverage`` of them (the outputs are
 written first). A damaged bag is replayed up to the damage, the outputs are written,
@@ -38,9 +39,12 @@ from laser_odom.io.bag_reader import (
     BagError, BagReader, BagTruncatedError, LASER_SCAN)
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.tools.plots import (
+    check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
 from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import (
-    DEFAULT_MIN_COVERAGE, print_summary, ReplayError, ReplayRecord, write_outputs)
+    DEFAULT_MIN_COVERAGE, print_summary, read_reference, ReplayError, ReplayRecord,
+    write_outputs)
 
 PROG = 'laser_odom_replay'
 PROGRESS_EVERY = 500
@@ -88,6 +92,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help='--reference: fail (exit 2) when less than this fraction of the '
                    'estimated poses pair with a reference pose; the outputs are written '
                    f'anyway (default: {DEFAULT_MIN_COVERAGE:g})')
+    p.add_argument('--plot', type=Path, metavar='PNG',
+                   help='after the run, write a PNG: the trajectory (and the SE(2)-aligned '
+                   '--reference) over the map the scans make at the estimated poses, and '
+                   'the error over time (needs matplotlib). With --live the node sends no '
+                   'scan points: the trajectory and the errors only')
     p.add_argument('--live', action='store_true',
                    help='publish the scans to a running laser_odom_node instead')
     p.add_argument('--scan-topic-out', default='scan', help='--live: scan topic of the node')
@@ -149,8 +158,12 @@ def load_prior_feed(bag: BagReader, prior: str, config: PriorConfig,
 
 
 def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed: PriorFeed,
-                   record: ReplayRecord, quiet: bool) -> None:
-    """Feed every scan through the pipeline, recording each estimate as it comes."""
+                   record: ReplayRecord, quiet: bool,
+                   points: ScanPointsRecorder | None = None) -> None:
+    """Feed every scan through the pipeline, recording each estimate as it comes.
+
+    ``points`` (``--plot``) keeps each estimate's base-frame scan points.
+    """
     def progress(count: int) -> None:
         record.scans_read = count
         if not quiet and count % PROGRESS_EVERY == 0:
@@ -161,6 +174,8 @@ def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed:
                    estimate.status, estimate.processing_time)
         if record.messages is not None:
             record.messages.add_estimate(estimate)
+        if points is not None:
+            points.add(estimate.scan_points)
 
     try:
         run_pipeline(pipeline, scans, priors=feed, progress=progress, on_estimate=on_estimate)
@@ -189,9 +204,28 @@ def check_outputs(args: argparse.Namespace) -> None:
         raise ReplayError(f'reference file not found: {args.reference}')
 
 
+def write_plot(record: ReplayRecord, points: ScanPointsRecorder | None,
+               args: argparse.Namespace) -> None:
+    """Write ``--plot`` (with the reference when it is readable; its errors come later)."""
+    reference = None
+    if args.reference is not None:
+        try:
+            truth = read_reference(args.reference)
+            reference = (truth.stamps_ns, truth.poses)
+        except (OSError, ValueError):
+            pass  # print_summary says what is wrong with it
+    trajectory = record.trajectory()
+    plot_replay(args.plot, trajectory.stamps_ns, trajectory.poses,
+                None if points is None else points.points, reference)
+    if not args.quiet:
+        print(f'wrote {args.plot}', flush=True)
+
+
 def replay(args: argparse.Namespace) -> int:
     """Run the replay described by parsed arguments; return the exit code."""
     check_outputs(args)
+    if args.plot is not None:
+        check_plot_output(args.plot)
     settings = load_settings(args)
     config, prior_config = settings.pipeline, settings.priors
     record = ReplayRecord(live=args.live)
@@ -200,6 +234,7 @@ def replay(args: argparse.Namespace) -> int:
         record.messages = MessageRecorder(settings.node)
     damage: BagTruncatedError | None = None
     interrupted = False
+    points = ScanPointsRecorder() if args.plot is not None and not args.live else None
     with BagReader(args.bag) as bag:
         topic = bag.select_topic(LASER_SCAN, args.scan_topic)
         prior = config.motion.prior
@@ -211,12 +246,14 @@ def replay(args: argparse.Namespace) -> int:
             else:
                 events = EventLog(warner(args.quiet))
                 run_in_process(bag.scans(topic), OdometryPipeline(config, events=events),
-                               feed, record, args.quiet)
+                               feed, record, args.quiet, points)
         except BagTruncatedError as err:
             damage = err
         except KeyboardInterrupt:
             interrupted = True
     write_outputs(record, args)
+    if args.plot is not None:
+        write_plot(record, points, args)
     problem = ''
     try:
         print_summary(record, args, topic, config.matcher if not args.live else None)
@@ -240,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings_silenced(args.quiet):
             return replay(args)
-    except (ReplayError, BagError, ParamsFileError, OutputExistsError) as err:
+    except (ReplayError, BagError, ParamsFileError, OutputExistsError, PlotError) as err:
         print(f'{PROG}: error: {err}', file=sys.stderr)
         return 2
     except BagWriteError as err:

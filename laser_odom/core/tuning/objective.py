@@ -1,0 +1,185 @@
+"""Score one trial of ``laser_odom_tune``: run the odometry over the bags, judge the run.
+
+A trial is a set of node parameter values. Each bag's scans go through a fresh
+:class:`~laser_odom.core.pipeline.OdometryPipeline` built from those values by the
+node's own rules (:func:`~laser_odom.core.settings.settings_from_params`), with the
+bag's wheel odometry or IMU fed as the prior exactly as the replay feeds it
+(:class:`~laser_odom.core.priors.PriorFeed`), so a tuned value means live what it
+meant here. The run is then scored, lower being better:
+
+- ``rpe`` (with a reference): mean translational RPE [m] + :data:`ROTATION_LENGTH` x
+  mean rotational RPE [rad] + :data:`FAILED_STEP_PENALTY` per failed step (RPE above
+  0.5 m or 10 deg, :mod:`laser_odom.core.metrics`): a lost step is what a user
+  notices first, so it costs more than its share of the mean;
+- ``ate`` (with a reference): the RMS absolute trajectory error after SE(2) alignment;
+- ``reference_free``: the sharpness of the local maps the scans make at the
+  estimated poses, plus, weighted, the disagreement with wheel odometry
+  (:func:`laser_odom.core.map_quality.reference_free_score`).
+
+Several bags score the mean of their scores. This module does not import Optuna:
+the tool passes a ``report`` callback that may stop a hopeless trial (pruning).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from laser_odom.core.events import EventLog
+from laser_odom.core.metrics import evaluate
+from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
+from laser_odom.core.priors import PriorFeed
+from laser_odom.core.runner import run_pipeline
+from laser_odom.core.scan import LaserScan
+from laser_odom.core.settings import settings_from_params
+from laser_odom.core.trajectory import ImuSamples, Trajectory
+
+OBJECTIVES = ('rpe', 'ate')
+"""Scores against a reference (``--objective``)."""
+
+REFERENCE_FREE = 'reference_free'
+"""The score without a reference (``--reference-free``)."""
+
+ROTATION_LENGTH = 1.0
+"""Metres one radian of rotational RPE counts as: the error it makes at 1 m, the
+typical distance at which a heading error shows in the next steps."""
+
+FAILED_STEP_PENALTY = 0.01
+"""Added to the ``rpe`` score per failed step [m]: a run with one lost step scores
+like one whose mean error is 1 cm worse."""
+
+FAILED_TRIAL_SCORE = 1e3
+"""The score of a trial that cannot run (a refused combination, an exception, a
+non-finite score): far above any real score, so the sampler avoids the region, and
+the study goes on."""
+
+Reporter = Callable[[int, float], None]
+"""``report(step, score_so_far)``; it raises to stop a hopeless trial."""
+
+
+@dataclass
+class TuneBag:
+    """What a trial needs of one bag: its scans, priors and reference, in memory."""
+
+    name: str
+    scans: list[LaserScan]
+    odometry: Trajectory | None = None
+    """Wheel odometry (``/odom``): the ``odom`` prior and ``--odom-agreement``."""
+    imu: ImuSamples | None = None
+    reference: Trajectory | None = None
+
+
+@dataclass
+class TrialResult:
+    """A trial's score, each bag's score, and why it failed (None when it ran)."""
+
+    score: float
+    bag_scores: list[float] = field(default_factory=list)
+    error: str | None = None
+    trajectories: list[Trajectory] = field(default_factory=list)
+
+
+@dataclass
+class _Run:
+    """The estimates of one bag so far (the points only for the reference-free score)."""
+
+    stamps: list[int] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)
+    points: list[np.ndarray] | None = None
+
+    def add(self, estimate: OdometryEstimate) -> None:
+        """Keep one estimate."""
+        self.stamps.append(estimate.stamp_ns)
+        self.poses.append(estimate.pose)
+        if self.points is not None:
+            points = estimate.scan_points
+            self.points.append(np.zeros((0, 2)) if points is None else points)
+
+    def trajectory(self) -> Trajectory:
+        """Return the poses so far."""
+        return Trajectory(np.array(self.stamps, dtype=np.int64),
+                          np.array(self.poses).reshape(-1, 3))
+
+
+def score_run(run: _Run, bag: TuneBag, objective: str, odom_weight: float = 0.0) -> float:
+    """Return the score of one bag's (partial) run; ValueError when it cannot be scored."""
+    trajectory = run.trajectory()
+    if len(trajectory) < 2:
+        raise ValueError('fewer than two scans were processed')
+    if objective == REFERENCE_FREE:
+        from laser_odom.core.map_quality import reference_free_score  # written alongside
+        return float(reference_free_score(
+            trajectory.stamps_ns, trajectory.poses, run.points or [],
+            odometry=bag.odometry if odom_weight > 0.0 else None, odom_weight=odom_weight))
+    if bag.reference is None:
+        raise ValueError(f'{bag.name} has no reference for --objective {objective}')
+    errors = evaluate(trajectory, bag.reference)
+    if objective == 'ate':
+        return errors.ate_rms
+    return (errors.rpe_trans_mean + ROTATION_LENGTH * math.radians(errors.rpe_rot_mean)
+            + FAILED_STEP_PENALTY * errors.failed_steps)
+
+
+def _pipeline(values: Mapping[str, Any], bag: TuneBag) -> tuple[OdometryPipeline, PriorFeed]:
+    """Build the pipeline and prior feed the node would run with ``values`` on ``bag``."""
+    settings = settings_from_params(values)
+    pipeline = OdometryPipeline(settings.pipeline, events=EventLog(lambda message: None))
+    prior = settings.pipeline.motion.prior
+    if prior == 'odom' and bag.odometry is None:
+        raise ValueError(f'{bag.name} has no wheel odometry for prior odom')
+    if prior == 'imu' and bag.imu is None:
+        raise ValueError(f'{bag.name} has no IMU for prior imu')
+    return pipeline, PriorFeed(prior, settings.priors, bag.odometry, bag.imu)
+
+
+def _chunks(bag: TuneBag, split: bool) -> list[list[LaserScan]]:
+    """Return the bag's scans whole, or in two halves (a checkpoint for pruning)."""
+    half = len(bag.scans) // 2
+    return [bag.scans[:half], bag.scans[half:]] if split and half >= 2 else [bag.scans]
+
+
+def run_trial(values: Mapping[str, Any], bags: Sequence[TuneBag], objective: str,
+              odom_weight: float = 0.0, report: Reporter | None = None,
+              keep_trajectories: bool = False) -> TrialResult:
+    """Run ``values`` over every bag and return the score (lower is better).
+
+    ``report(step, score)`` is called after each bag but the last with the mean score
+    so far, and for a single bag after its first half (step 0): a pruner stops a
+    hopeless trial there by raising, which passes through (the final score is the
+    return value, so a finished trial is never pruned). Any other failure -
+    a refused value, an exception of the pipeline, a run that cannot be scored -
+    gives :data:`FAILED_TRIAL_SCORE` and says why in ``error``, never an exception.
+    """
+    result = TrialResult(FAILED_TRIAL_SCORE)
+    step = 0
+    for number, bag in enumerate(bags, start=1):
+        run = _Run(points=[] if objective == REFERENCE_FREE else None)
+        try:
+            pipeline, feed = _pipeline(values, bag)
+        except Exception as err:  # noqa: B902 - any refused combination fails the trial
+            result.error = f'{type(err).__name__}: {err}'
+            return result
+        chunks = _chunks(bag, split=len(bags) == 1)
+        for index, chunk in enumerate(chunks):
+            try:
+                run_pipeline(pipeline, chunk, priors=feed, on_estimate=run.add)
+                score = score_run(run, bag, objective, odom_weight)
+                if not math.isfinite(score):
+                    raise ValueError(f'score {score} on {bag.name}')
+            except Exception as err:  # noqa: B902 - a bad combination must not stop a study
+                result.error = f'{type(err).__name__}: {err}'
+                result.bag_scores = []
+                return result
+            last = index == len(chunks) - 1
+            if last:
+                result.bag_scores.append(score)
+                if keep_trajectories:
+                    result.trajectories.append(run.trajectory())
+            if report is not None and not (last and number == len(bags)):  # not the final
+                report(step, float(np.mean(result.bag_scores)) if last else score)
+            step += 1
+    result.score = float(np.mean(result.bag_scores))
+    return result

@@ -1,0 +1,320 @@
+"""``laser_odom_tune BAG [BAG ...]``: search each matcher's parameters on the user's own bags.
+
+For every matcher (``--matchers``) an Optuna study (:mod:`laser_odom.core.tuning.study`)
+searches the space of :mod:`laser_odom.core.tuning.space`, scoring each trial by
+running the node's pipeline over the bags (:mod:`laser_odom.core.tuning.objective`):
+against a reference when every bag has one (``--reference REF.tum`` per bag, or a
+``/ground_truth`` Odometry topic), otherwise reference-free. It prints a table per
+matcher (default and best score, trials, wall time) and writes the best matcher's
+settings as a params file the node loads as it is (``--output``).
+
+Exit codes: 0 ok, 1 runtime failure, 2 input error (a bag without scans, a reference
+that does not overlap its bag, an empty ``--space`` range, a storage that cannot be
+opened, an unknown matcher, Optuna or matplotlib missing) - each said in one line.
+"""
+
+from __future__ import annotations
+
+import argparse
+from functools import partial
+import math
+import os
+from pathlib import Path
+import shutil
+import sys
+import tempfile
+from typing import Any, Sequence
+
+import numpy as np
+
+from laser_odom.core.matchers import matcher_names
+from laser_odom.core.metrics import associate
+from laser_odom.core.settings import parameter_specs
+from laser_odom.core.trajectory import Trajectory
+from laser_odom.core.tuning.objective import OBJECTIVES, REFERENCE_FREE, TuneBag
+from laser_odom.core.tuning.space import (
+    BASE_PRIORS, matcher_space, read_space_file, SpaceError)
+from laser_odom.core.tuning.study import (
+    open_storage, plot_data, run_studies, StorageError, StudySummary, summarize,
+    table_lines, TuneJob)
+from laser_odom.io.bag_reader import BagError, BagReader, IMU, LASER_SCAN, ODOMETRY
+from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.io.tum import read_tum, TumFormatError
+from laser_odom.ros.default_params import yaml_value
+from laser_odom.tools.quiet import warnings_silenced
+from laser_odom.tools.replay_report import DEFAULT_MIN_COVERAGE
+
+PROG = 'laser_odom_tune'
+GROUND_TRUTH = '/ground_truth'
+"""Odometry topic taken as the reference when no ``--reference`` is given."""
+
+
+class TuneError(Exception):
+    """An input error; ``str(error)`` is the one-line message (exit code 2)."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line parser."""
+    p = argparse.ArgumentParser(
+        prog=PROG, description='Tune the matchers and pipeline settings on your own bags '
+        'with Optuna, against a reference or reference-free; write the best as a params '
+        'file for laser_odom_node.')
+    p.add_argument('bags', nargs='+', metavar='BAG', help='ROS 2 or ROS 1 bag')
+    p.add_argument('--matchers', help='comma-separated matchers (default: all: '
+                   f'{",".join(matcher_names())})')
+    p.add_argument('--trials', type=int, default=60, help='trials per matcher (default 60)')
+    p.add_argument('--reference', type=Path, action='append', default=[], metavar='REF.tum',
+                   help='reference TUM file, one per bag in order (default: the '
+                   f'{GROUND_TRUTH} topic of the bag)')
+    p.add_argument('--objective', choices=OBJECTIVES, default='rpe',
+                   help='score against the reference: rpe (mean translational RPE + 1 m/rad '
+                   'x mean rotational RPE + 0.01 per failed step) or ate (default: rpe)')
+    p.add_argument('--reference-free', action='store_true', help='score by map sharpness '
+                   '(forced when a bag has no reference)')
+    p.add_argument('--odom-agreement', type=float, default=0.0, metavar='WEIGHT',
+                   help='reference-free: add WEIGHT x disagreement with wheel odometry')
+    p.add_argument('--min-coverage', type=float, default=DEFAULT_MIN_COVERAGE,
+                   metavar='FRACTION', help='least fraction of the scans of a bag that the '
+                   f'reference must pair with (default {DEFAULT_MIN_COVERAGE:g})')
+    p.add_argument('--params-file', type=Path, help='starting params file (trial 0)')
+    p.add_argument('--space', type=Path, help='YAML of ranges: name: [low, high] or '
+                   '[choice, ...]')
+    p.add_argument('--output', type=Path, default=Path('tuned.yaml'),
+                   help='params file of the best settings (default tuned.yaml)')
+    p.add_argument('--study-name', default='laser_odom_tune',
+                   help='study name; one study per matcher, NAME-MATCHER')
+    p.add_argument('--storage', help='Optuna RDB storage URL (sqlite:///study.db, '
+                   'postgresql://...) to resume or share a study')
+    p.add_argument('--jobs', type=int, default=1, help='parallel processes (default 1)')
+    p.add_argument('--seed', type=int, help='sampler seed')
+    p.add_argument('--scan-topic', help='LaserScan topic (default: the only one)')
+    p.add_argument('--odom-topic', default='/odom', help='wheel odometry topic (default '
+                   '/odom): the odom prior and --odom-agreement')
+    p.add_argument('--plot', type=Path, help='write a PNG of the studies and best runs')
+    p.add_argument('--quiet', action='store_true', help='no progress and no warnings')
+    return p
+
+
+def _read_reference(path: Path) -> Trajectory:
+    """Read a reference TUM file; TuneError when missing or malformed."""
+    try:
+        return read_tum(path)
+    except FileNotFoundError:
+        raise TuneError(f'reference file not found: {path}') from None
+    except (OSError, TumFormatError) as err:
+        raise TuneError(f'cannot read reference {path}: {err}') from None
+
+
+def check_overlap(bag: TuneBag, reference_name: str, min_coverage: float) -> None:
+    """Raise TuneError when the reference pairs with too few of the bag's scans in time.
+
+    The replay's rule (``--min-coverage``), with the scan stamps in place of poses.
+    """
+    stamps = Trajectory(np.array([s.stamp_ns for s in bag.scans], dtype=np.int64),
+                        np.zeros((len(bag.scans), 3)))
+    paired = len(associate(stamps, bag.reference)[0]) if bag.reference is not None else 0
+    if paired < 2 or paired < min_coverage * len(stamps):
+        raise TuneError(f'reference {reference_name} does not overlap {bag.name} in time: '
+                        f'it pairs with {paired} of {len(stamps)} scans (--min-coverage '
+                        f'{min_coverage:g})')
+
+
+def load_bag(path: str, reference: str | None, scan_topic: str | None,
+             odom_topic: str) -> TuneBag:
+    """Read one bag's scans (in bag order, as the replay), odometry, IMU and reference."""
+    odom_topic = odom_topic if odom_topic.startswith('/') else '/' + odom_topic
+    with BagReader(path) as bag:
+        scans = list(bag.scans(bag.select_topic(LASER_SCAN, scan_topic)))
+        if len(scans) < 2:
+            raise TuneError(f'{path}: {len(scans)} scans; tuning needs a bag with scans')
+        odometry = (bag.odometry(odom_topic) if bag.topics.get(odom_topic) == ODOMETRY
+                    else None)
+        imu_topics = bag.topics_of_type(IMU)
+        imu = bag.imu(imu_topics[0]) if len(imu_topics) == 1 else None
+        truth = (bag.odometry(GROUND_TRUTH) if reference is None
+                 and bag.topics.get(GROUND_TRUTH) == ODOMETRY else None)
+    tuned = TuneBag(str(path), scans, odometry, imu, truth)
+    if reference is not None:
+        tuned.reference = _read_reference(Path(reference))
+    return tuned
+
+
+def load_bags(paths: Sequence[str], references: Sequence[str | None],
+              scan_topic: str | None, odom_topic: str) -> list[TuneBag]:
+    """Read every bag (also what each ``--jobs`` process calls)."""
+    return [load_bag(p, r, scan_topic, odom_topic) for p, r in zip(paths, references)]
+
+
+def _matchers(text: str | None) -> list[str]:
+    """Return the ``--matchers`` list; TuneError for an unknown name."""
+    names = matcher_names() if not text else [m.strip() for m in text.split(',') if m.strip()]
+    unknown = [m for m in names if m not in matcher_names()]
+    if unknown or not names:
+        raise TuneError(f'unknown matcher {unknown[0] if unknown else text!r}; valid '
+                        f'names: {", ".join(matcher_names())}')
+    return list(dict.fromkeys(names))
+
+
+def _require(module: str, package: str, what: str) -> None:
+    """Import ``module`` or raise TuneError naming what to install."""
+    try:
+        __import__(module)
+    except ImportError:
+        raise TuneError(f'{what} needs {package}: pip install {package}') from None
+
+
+def _objective_name(args: argparse.Namespace, bags: list[TuneBag], warn: Any) -> str:
+    """Return the score to use: the ``--objective``, or reference-free without references."""
+    odom_weight = args.odom_agreement
+    if not math.isfinite(odom_weight) or odom_weight < 0.0:
+        raise TuneError(f'--odom-agreement must be a finite weight >= 0, got {odom_weight}')
+    missing = [b.name for b in bags if b.reference is None]
+    objective = REFERENCE_FREE if args.reference_free or missing else args.objective
+    if missing and not args.reference_free:
+        warn(f'no reference for {missing[0]} (no --reference, no {GROUND_TRUTH} topic): '
+             'scoring every bag reference-free')
+    if odom_weight > 0.0:
+        if objective != REFERENCE_FREE:
+            raise TuneError('--odom-agreement weighs the reference-free score: add '
+                            '--reference-free')
+        lacking = [b.name for b in bags if b.odometry is None]
+        if lacking:
+            raise TuneError(f'--odom-agreement: {lacking[0]} has no {args.odom_topic} '
+                            'Odometry topic')
+    if objective != REFERENCE_FREE:
+        for bag, ref in zip(bags, args.reference or [GROUND_TRUTH] * len(bags)):
+            check_overlap(bag, str(ref), args.min_coverage)
+    return objective
+
+
+def tuned_yaml(values: dict[str, Any], summary: StudySummary, header: list[str]) -> str:
+    """Return the node's params file of ``values``: only what differs from the defaults.
+
+    Each line says in a comment what it was and the score it reached; matcher settings
+    are nested under ``<matcher>:`` as in ``config/default.yaml``.
+    """
+    defaults = {spec.name: spec.default for spec in parameter_specs()}
+    score = f'score {summary.best:.5g} (defaults {summary.default:.5g})'
+    matcher = yaml_value(values['matcher'])
+    lines = [f'# {line}' for line in header] + [
+        '/**:', '  ros__parameters:', f'    matcher: {matcher}  # best matcher: {score}']
+    nested: dict[str, list[str]] = {}
+    for name, value in values.items():
+        if name == 'matcher' or value == defaults[name]:
+            continue
+        group, _, leaf = name.rpartition('.')
+        nested.setdefault(group, []).append(
+            f'{"      " if group else "    "}{leaf}: {yaml_value(value)}  '
+            f'# default {yaml_value(defaults[name])}; {score}')
+    lines += nested.pop('', [])
+    for group, group_lines in nested.items():
+        lines += [f'    {group}:'] + group_lines
+    return '\n'.join(lines) + '\n'
+
+
+def write_output(path: Path, text: str) -> None:
+    """Write the params file atomically and check that the node reads it as written."""
+    tmp = path.with_name(f'.{path.name}.{os.getpid()}.partial')
+    try:
+        tmp.write_text(text)
+        checked = read_params_files([tmp])
+        if checked.warnings:
+            raise TuneError(f'internal error: {path} would warn: {checked.warnings[0]}')
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def plot(path: Path, job: TuneJob, storage: Any, bags: list[TuneBag],
+         summaries: list[StudySummary]) -> None:
+    """Draw each study's scores and each matcher's best run on the first bag (``--plot``)."""
+    from laser_odom.tools import plots  # matplotlib: only when asked for
+    studies, best = plot_data(job, storage, bags[:1], summaries)
+    ref = bags[0].reference
+    try:
+        plots.plot_study(path, studies, best, None if ref is None else (ref.stamps_ns, ref.poses))
+    except plots.PlotError as err:
+        raise TuneError(str(err)) from None
+
+
+def tune(args: argparse.Namespace) -> int:
+    """Run the tuning described by parsed arguments; return the exit code."""
+    _require('optuna', 'optuna', PROG)
+    if args.plot is not None:
+        _require('matplotlib', 'matplotlib', f'{PROG} --plot')
+    for path in (args.output, args.plot):
+        if path is not None and not path.parent.is_dir():
+            raise TuneError(f'directory {path.parent} does not exist (for {path})')
+    warn = (lambda message: None) if args.quiet else (
+        lambda message: print(f'{PROG}: warning: {message}', file=sys.stderr))
+    matchers = _matchers(args.matchers)
+    if args.reference and len(args.reference) != len(args.bags):
+        raise TuneError(f'{len(args.reference)} --reference for {len(args.bags)} bags: give '
+                        'one per bag, in order, or none')
+    overrides = read_space_file(args.space, matchers) if args.space is not None else {}
+    base: dict[str, Any] = {}
+    if args.params_file is not None:
+        checked = read_params_files([args.params_file])
+        for message in checked.warnings:
+            warn(message)
+        base = {k: v for k, v in checked.values.items() if k != 'matcher'}
+    references = [str(r) for r in args.reference] or [None] * len(args.bags)
+    loader = partial(load_bags, list(args.bags), references, args.scan_topic, args.odom_topic)
+    bags = loader()
+    objective = _objective_name(args, bags, warn)
+    priors = list(BASE_PRIORS) + [p for p, ok in (
+        ('odom', all(b.odometry is not None for b in bags)),
+        ('imu', all(b.imu is not None for b in bags))) if ok]
+    if base.get('prior', BASE_PRIORS[-1]) not in priors:
+        raise TuneError(f'{args.params_file} sets prior {base["prior"]}, but not every bag '
+                        'has its topic')
+    spaces = {m: matcher_space(m, base, priors, overrides) for m in matchers}
+    temporary = tempfile.mkdtemp(prefix='laser_odom_tune.') if (
+        args.jobs > 1 and args.storage is None) else None
+    url = args.storage or (f'sqlite:///{temporary}/study.db' if temporary else None)
+    try:
+        storage = open_storage(url)
+        job = TuneJob(loader, spaces, base, objective, args.odom_agreement, args.study_name,
+                      url, args.seed, sys.stderr.isatty() and not args.quiet)
+        existing = run_studies(job, storage, args.trials, args.jobs)
+        summaries = summarize(job, storage, existing)
+        print('\n'.join(table_lines(summaries, objective)))
+        winner = min(summaries, key=lambda s: s.best if math.isfinite(s.best) else math.inf)
+        header = [f'{PROG}: best of {", ".join(matchers)} on {", ".join(args.bags)}',
+                  f'score {objective.replace("_", "-")}, lower is better; study '
+                  f'{args.study_name}-{winner.matcher}, {winner.total} trials']
+        write_output(args.output, tuned_yaml(winner.best_values or {'matcher': winner.matcher},
+                                             winner, header))
+        print(f'best: {winner.matcher} {winner.best:.5g} (defaults {winner.default:.5g}); '
+              f'wrote {args.output}')
+        if args.plot is not None:
+            plot(args.plot, job, storage, bags, summaries)
+            print(f'wrote {args.plot}')
+    finally:
+        if temporary is not None:
+            shutil.rmtree(temporary, ignore_errors=True)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``laser_odom_tune``; return the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.trials < 1 or args.jobs < 1:
+        parser.error('--trials and --jobs must be at least 1')
+    try:
+        with warnings_silenced(args.quiet):
+            return tune(args)
+    except (TuneError, SpaceError, StorageError, BagError, ParamsFileError) as err:
+        print(f'{PROG}: error: {err}', file=sys.stderr)
+        return 2
+    except RuntimeError as err:  # a --jobs process died
+        print(f'{PROG}: error: {err}', file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f'{PROG}: interrupted; finished trials stay in the storage', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())
