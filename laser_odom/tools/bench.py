@@ -25,29 +25,25 @@ import argparse
 from functools import lru_cache
 import json
 import logging
-import math
-import os
 from pathlib import Path
-import platform
 import sys
 import time
-from typing import Any, Callable, Collection, Mapping, Sequence, TextIO
-
-import numpy as np
+from typing import Any, Callable, Mapping, Sequence, TextIO
 
 from laser_odom.core.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    search_timing, SearchTimingRow, SIMULATED, WHEEL_ODOMETRY, wheel_odometry_row)
-from laser_odom.core.config import GlobalSearchConfig, pipeline_config_from_params
+    search_timing, SearchTimingRow, SIMULATED, wheel_odometry_row)
+from laser_odom.core.config import pipeline_config_from_params
 from laser_odom.core.datasets import (
     DatasetError, discover_datasets, load_dataset, subsampled_datasets)
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.metrics import associate
 from laser_odom.core.params import ParameterError
-from laser_odom.core.trajectory import Dataset, Trajectory
-from laser_odom.io.bag_reader import BagError, BagReader, LASER_SCAN, ODOMETRY
+from laser_odom.core.trajectory import Dataset
+from laser_odom.io.bag_dataset import (
+    BAG_GROUND_TRUTH, bag_loaders, BAG_ODOMETRY, NO_REFERENCE)
+from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
-from laser_odom.io.tum import read_tum
+from laser_odom.tools.bench_table import format_search_table, format_table, machine_line
 from laser_odom.tools.quiet import warnings_silenced
 
 LOGGER = logging.getLogger('laser_odom.tools.bench')
@@ -55,78 +51,6 @@ LOGGER = logging.getLogger('laser_odom.tools.bench')
 
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
 """``../shared/data`` beside a source checkout, the project's real logs."""
-
-COLUMNS = [
-    ('dataset', 25, None, 'dataset'), ('matcher', 14, None, 'matcher'),
-    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'), ('beams', 5, None, 'beams'),
-    ('steps', 5, None, 'steps'),
-    ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
-    ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
-    ('ate', 7, 3, 'ATE'), ('failed', 6, None, 'failed'),
-    ('median_ms', 7, 2, 'med ms'), ('p95_ms', 7, 2, 'p95 ms'),
-]
-"""Table columns: row field, width, decimals (None: as is), title."""
-
-BAG_ODOMETRY = '/odom'
-"""The wheel odometry topic of a ``--bag``."""
-
-BAG_GROUND_TRUTH = '/ground_truth'
-"""The reference topic of a ``--bag`` given no ``--reference``."""
-
-NO_REFERENCE = '-'
-"""A ``--reference`` that gives its bag none (the bag's ``/ground_truth``, if any)."""
-
-
-def cpu_name() -> str:
-    """Return the CPU model name (Linux), or the platform's processor string."""
-    try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                return line.split(':', 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or 'unknown CPU'
-
-
-def machine_line() -> str:
-    """Return the line that says what machine the timings come from."""
-    return (f'# {cpu_name()}, {os.cpu_count()} cores; Python {platform.python_version()}, '
-            f'numpy {np.__version__}; timings: median/p95 ms per scan after '
-            'a warm-up, whole per-scan work in one process')
-
-
-def _cell(value: object, width: int, decimals: int | None) -> str:
-    """Format one table cell: text left-aligned, numbers right-aligned, n/a for no value."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return f'{"n/a":>{width}}'
-    if isinstance(value, str):
-        return f'{value:<{width}}'
-    if decimals is None:
-        return f'{value:>{width}}'
-    return f'{value:>{width}.{decimals}f}'
-
-
-def _columns(rows: Sequence, columns: list, text_columns: int) -> list[str]:
-    """Return the header and one line per row (``as_dict``) of a fixed-width table."""
-    lines = [' '.join(_cell(title, width, None) if i < text_columns else f'{title:>{width}}'
-                      for i, (_, width, _, title) in enumerate(columns))]
-    for row in rows:
-        values = row.as_dict()
-        lines.append(' '.join(_cell(values[key], width, decimals)
-                              for key, width, decimals, _ in columns))
-    return lines
-
-
-def format_table(rows: Sequence[BenchRow]) -> str:
-    """Return the rows as a fixed-width text table with units in the legend."""
-    unscored = sorted({row.dataset for row in rows if row.failed is None
-                       and row.matcher != WHEEL_ODOMETRY})
-    return '\n'.join(_columns(rows, COLUMNS, 4) + [
-        '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
-        'alignment; failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
-        '(auto: on when the scans have a time_increment)'] + (
-        [f'# n/a: no reference for {", ".join(unscored)} (--bag without --reference or '
-         f'{BAG_GROUND_TRUTH}): timed only'] if unscored else []))
 
 
 class ProgressBar:
@@ -246,76 +170,6 @@ def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
     return loaders
 
 
-def bag_name(path: str, taken: Collection[str]) -> str:
-    """Return a dataset name for a bag: its directory or file name, made unique."""
-    bag = Path(path)
-    base = (bag.name if bag.is_dir() else bag.stem) or str(bag)
-    name, number = base, 1
-    while name in taken:
-        number += 1
-        name = f'{base}-{number}'
-    return name
-
-
-def _bag_reference(reference: str | None) -> Trajectory | None:
-    """Read a ``--reference`` TUM file (None for none); ValueError in one line."""
-    if reference is None or reference == NO_REFERENCE:
-        return None
-    if not Path(reference).is_file():
-        raise ValueError(f'reference file not found: {reference}')
-    return read_tum(reference)
-
-
-def _check_overlap(dataset: Dataset, source: str) -> None:
-    """Raise ValueError when the reference pairs with fewer than two scans in time."""
-    stamps = np.array([scan.stamp_ns for scan in dataset.scans], dtype=np.int64)
-    paired = len(associate(Trajectory(stamps, np.zeros((len(stamps), 3))),
-                           dataset.reference)[0])
-    if paired < 2:
-        raise ValueError(f'reference {source} does not overlap bag {dataset.name} in time: '
-                         f'it pairs with {paired} of {len(stamps)} scans (stamps within '
-                         '10 ms)')
-
-
-def load_bag_dataset(path: str, name: str, reference: str | None = None) -> Dataset:
-    """Read a bag's scans, ``/odom`` and reference (``--reference``, else ``/ground_truth``).
-
-    Raises ValueError or :class:`BagError` (one line) for a missing bag, a bag without
-    scans and a reference that does not overlap the scans in time.
-    """
-    truth = _bag_reference(reference)
-    with BagReader(path) as bag:
-        scans = list(bag.scans(bag.select_topic(LASER_SCAN)))
-        if len(scans) < 2:
-            raise ValueError(f'{path}: {len(scans)} scans; a benchmark needs a bag with scans')
-        odometry = (bag.odometry(BAG_ODOMETRY) if bag.topics.get(BAG_ODOMETRY) == ODOMETRY
-                    else Trajectory())
-        if truth is None and bag.topics.get(BAG_GROUND_TRUTH) == ODOMETRY:
-            truth, reference = bag.odometry(BAG_GROUND_TRUTH), f'{path}:{BAG_GROUND_TRUTH}'
-    dataset = Dataset(name, scans, odometry, truth if truth is not None else Trajectory())
-    if truth is not None:
-        _check_overlap(dataset, str(reference))
-    return dataset
-
-
-def bag_loaders(bags: Sequence[str], references: Sequence[str],
-                taken: Collection[str]) -> dict[str, Callable[[], Dataset]]:
-    """Read every ``--bag`` now (bad input fails before the runs); name -> loader.
-
-    The i-th reference belongs to the i-th bag; names avoid those in ``taken``.
-    """
-    if len(references) > len(bags):
-        raise ValueError(f'{len(references)} --reference for {len(bags)} --bag: the i-th '
-                         '--reference belongs to the i-th --bag')
-    loaders: dict[str, Callable[[], Dataset]] = {}
-    for index, path in enumerate(bags):
-        name = bag_name(path, [*taken, *loaders])
-        reference = references[index] if index < len(references) else None
-        dataset = load_bag_dataset(path, name, reference)
-        loaders[name] = lambda dataset=dataset: dataset
-    return loaders
-
-
 def dataset_names(args: argparse.Namespace, loaders: Mapping[str, object],
                   bags: Sequence[str] = ()) -> list[str]:
     """Return the datasets to run: ``--datasets`` (default: all but grids), ``--grid``, bags.
@@ -374,28 +228,6 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
         if not args.no_search_table:
             searches.append(search_timing(dataset))
     return rows, searches
-
-
-SEARCH_COLUMNS = [
-    ('dataset', 25, None, 'dataset'), ('beams', 5, None, 'beams'),
-    ('searches', 8, None, 'searches'), ('median_ms', 7, 2, 'med ms'),
-    ('p95_ms', 7, 2, 'p95 ms'), ('grid_ms', 7, 2, 'grid ms'), ('tree_ms', 7, 2, 'tree ms'),
-    ('nodes', 7, None, 'nodes'), ('exhaustive', 10, 2, 'exhaustive'),
-]
-"""Columns of the global-search table: field, width, decimals, title."""
-
-
-def format_search_table(rows: Sequence[SearchTimingRow]) -> str:
-    """Return the global-search timings as a fixed-width table."""
-    window = GlobalSearchConfig()
-    return '\n'.join(
-        [f'# global search alone, default window +-{window.global_search_linear:g} m, '
-         f'+-{math.degrees(window.global_search_angular):.0f} deg at '
-         f'{window.global_search_resolution:g} m; consecutive scans, zero guess']
-        + _columns(rows, SEARCH_COLUMNS, 1)
-        + ['# med/p95 ms: whole search; grid: rasterise and bound the reference; tree: '
-           'score the branch-and-bound nodes (median count); exhaustive: share of '
-           'searches below the node cap'])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

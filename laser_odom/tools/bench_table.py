@@ -1,0 +1,100 @@
+"""The benchmark's tables: fixed-width columns and the machine they were measured on."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+import platform
+from typing import Sequence
+
+import numpy as np
+
+from laser_odom.core.benchmark import BenchRow, SearchTimingRow, WHEEL_ODOMETRY
+from laser_odom.core.config import GlobalSearchConfig
+from laser_odom.io.bag_dataset import BAG_GROUND_TRUTH
+
+COLUMNS = [
+    ('dataset', 25, None, 'dataset'), ('matcher', 14, None, 'matcher'),
+    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'), ('beams', 5, None, 'beams'),
+    ('steps', 5, None, 'steps'),
+    ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
+    ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
+    ('ate', 7, 3, 'ATE'), ('failed', 6, None, 'failed'),
+    ('median_ms', 7, 2, 'med ms'), ('p95_ms', 7, 2, 'p95 ms'),
+]
+"""Table columns: row field, width, decimals (None: as is), title."""
+
+
+def cpu_name() -> str:
+    """Return the CPU model name (Linux), or the platform's processor string."""
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                return line.split(':', 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or 'unknown CPU'
+
+
+def machine_line() -> str:
+    """Return the line that says what machine the timings come from."""
+    return (f'# {cpu_name()}, {os.cpu_count()} cores; Python {platform.python_version()}, '
+            f'numpy {np.__version__}; timings: median/p95 ms per scan after '
+            'a warm-up, whole per-scan work in one process')
+
+
+def _cell(value: object, width: int, decimals: int | None) -> str:
+    """Format one table cell: text left-aligned, numbers right-aligned, n/a for no value."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return f'{"n/a":>{width}}'
+    if isinstance(value, str):
+        return f'{value:<{width}}'
+    if decimals is None:
+        return f'{value:>{width}}'
+    return f'{value:>{width}.{decimals}f}'
+
+
+def _columns(rows: Sequence, columns: list, text_columns: int) -> list[str]:
+    """Return the header and one line per row (``as_dict``) of a fixed-width table."""
+    lines = [' '.join(_cell(title, width, None) if i < text_columns else f'{title:>{width}}'
+                      for i, (_, width, _, title) in enumerate(columns))]
+    for row in rows:
+        values = row.as_dict()
+        lines.append(' '.join(_cell(values[key], width, decimals)
+                              for key, width, decimals, _ in columns))
+    return lines
+
+
+def format_table(rows: Sequence[BenchRow]) -> str:
+    """Return the rows as a fixed-width text table with units in the legend."""
+    unscored = sorted({row.dataset for row in rows if row.failed is None
+                       and row.matcher != WHEEL_ODOMETRY})
+    return '\n'.join(_columns(rows, COLUMNS, 4) + [
+        '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
+        'alignment; failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
+        '(auto: on when the scans have a time_increment)'] + (
+        [f'# n/a: no reference for {", ".join(unscored)} (--bag without --reference or '
+         f'{BAG_GROUND_TRUTH}): timed only'] if unscored else []))
+
+
+SEARCH_COLUMNS = [
+    ('dataset', 25, None, 'dataset'), ('beams', 5, None, 'beams'),
+    ('searches', 8, None, 'searches'), ('median_ms', 7, 2, 'med ms'),
+    ('p95_ms', 7, 2, 'p95 ms'), ('grid_ms', 7, 2, 'grid ms'), ('tree_ms', 7, 2, 'tree ms'),
+    ('nodes', 7, None, 'nodes'), ('exhaustive', 10, 2, 'exhaustive'),
+]
+"""Columns of the global-search table: field, width, decimals, title."""
+
+
+def format_search_table(rows: Sequence[SearchTimingRow]) -> str:
+    """Return the global-search timings as a fixed-width table."""
+    window = GlobalSearchConfig()
+    return '\n'.join(
+        [f'# global search alone, default window +-{window.global_search_linear:g} m, '
+         f'+-{math.degrees(window.global_search_angular):.0f} deg at '
+         f'{window.global_search_resolution:g} m; consecutive scans, zero guess']
+        + _columns(rows, SEARCH_COLUMNS, 1)
+        + ['# med/p95 ms: whole search; grid: rasterise and bound the reference; tree: '
+           'score the branch-and-bound nodes (median count); exhaustive: share of '
+           'searches below the node cap'])
