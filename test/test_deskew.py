@@ -157,3 +157,21 @@ def test_logs_without_sweep_timing_give_identical_results(real_log):
                               if e is not None]))
     assert runs[0].shape == (300, 3)
     assert np.array_equal(runs[0], runs[1])
+
+
+def test_a_scan_with_bad_timing_takes_the_sensors_last_valid_timing():
+    data = simulate('office', 12.0, sensor_model('lds01'),
+                    motion=ConstantTwist(0.3, 1.5, (1.0, 0.5, 0.0)), seed=1)
+    good = _run(data, 'nicp', 'auto')
+    for k, scan in enumerate(data.scans):
+        if k % 10 == 5:
+            scan.time_increment = math.nan if k % 20 == 5 else 3.0 * scan.time_increment
+    said = []
+    config = PipelineConfig(matcher='nicp')
+    pipeline = OdometryPipeline(config, events=EventLog(said.append))
+    for scan in data.scans:
+        pipeline.process(scan)
+    assert pipeline.counters['time_increment_invalid'] == 6
+    assert sum('time_increment' in line for line in said) == 1
+    assert 'last valid time_increment is used' in said[0]
+    assert _run(data, 'nicp', 'auto')[1] <= good[1] * 1.2 + 0.002  # no lasting drift

@@ -40,8 +40,7 @@ DESKEW_EVENTS = {
                                'scan_time / beams per revolution',
     'time_increment_reversed': 'time_increment is negative: the beams were taken from '
                                'the last to the first (a reversed sweep)',
-    'time_increment_invalid': 'time_increment is NaN, inf or longer than the scan: '
-                              'the scan is not de-skewed',
+    'time_increment_invalid': 'time_increment is NaN, inf or longer than the scan',
     'sweep_timing_missing': 'deskew is on but the scan has neither time_increment nor '
                             'scan_time: the scan is not de-skewed',
 }
@@ -63,21 +62,22 @@ def beam_times(count: int, time_increment: float, stamp_at_last: bool) -> np.nda
 
 
 def sweep_times(scan: LaserScan, count: int, mode: str, stamp_at_last: bool,
-                events: EventLog) -> np.ndarray | None:
+                events: EventLog, last_valid: float | None = None) -> np.ndarray | None:
     """Return the beam times of a scan for de-skewing, or None when it is not de-skewed.
 
     ``mode`` is the ``deskew`` parameter: ``off``; ``auto`` de-skews the scans that
     carry a non-zero ``time_increment``; ``on`` also repairs a zero one from
     ``scan_time`` (one revolution per scan). Timing that cannot be right - NaN, or a
-    sweep longer than the scan period - is ignored, counted and said once.
+    sweep longer than the scan period - is counted and said once; the scan then takes
+    ``last_valid``, the ``time_increment`` of the last scan of the same beam count
+    that had a valid one (the same sensor: leaving one scan bent among straight ones
+    would bias the two matches it takes part in), or is not de-skewed without one.
     """
     if mode == 'off':
         return None
     increment, scan_time = scan.time_increment, scan.scan_time
     if not isinstance(increment, (int, float)) or not math.isfinite(increment):
-        events.warn('time_increment_invalid', DESKEW_EVENTS['time_increment_invalid'],
-                    once=True)
-        return None
+        return _invalid(events, '', count, last_valid, stamp_at_last)
     period = float(scan_time) if isinstance(scan_time, (int, float)) and math.isfinite(
         scan_time) and scan_time > 0.0 else 0.0
     if increment == 0.0:
@@ -93,9 +93,8 @@ def sweep_times(scan: LaserScan, count: int, mode: str, stamp_at_last: bool,
     sweep = abs(increment) * (count - 1)
     limit = period * (1.0 + SWEEP_TOLERANCE) if period > 0.0 else MAX_SWEEP_WITHOUT_SCAN_TIME
     if sweep > limit:
-        events.warn('time_increment_invalid', DESKEW_EVENTS['time_increment_invalid']
-                    + f' (sweep {sweep:.3g} s, scan_time {scan_time!r})', once=True)
-        return None
+        return _invalid(events, f' (sweep {sweep:.3g} s, scan_time {period:.3g} s)', count,
+                        last_valid, stamp_at_last)
     if increment < 0.0:
         events.warn('time_increment_reversed', DESKEW_EVENTS['time_increment_reversed'],
                     once=True)
@@ -121,6 +120,16 @@ def twist_of_step(step: np.ndarray, dt: float) -> np.ndarray:
     vx = (a * step[0] + b * step[1]) / norm
     vy = (-b * step[0] + a * step[1]) / norm
     return np.array([vx, vy, theta]) / dt
+
+
+def _invalid(events: EventLog, detail: str, count: int, last_valid: float | None,
+             stamp_at_last: bool) -> np.ndarray | None:
+    """Count and say (once) unusable timing; fall back on the last valid increment."""
+    fallback = ('; the last valid time_increment is used' if last_valid is not None else
+                '; the scan is not de-skewed')
+    events.warn('time_increment_invalid', DESKEW_EVENTS['time_increment_invalid'] + detail
+                + fallback, once=True)
+    return None if last_valid is None else beam_times(count, last_valid, stamp_at_last)
 
 
 def move_points(points: np.ndarray, times: np.ndarray, twist: np.ndarray) -> np.ndarray:

@@ -43,6 +43,8 @@ class ScanValidator:
         self.config = scan_config
         self.mounting = mounting.mounting()
         self.events = events if events is not None else EventLog()
+        self._valid_increments: dict[int, float] = {}
+        """The last valid ``time_increment`` per beam count (the fallback for bad ones)."""
 
     def check(self, scan: LaserScan) -> tuple[ScanPoints | None, str]:
         """Return ``(points, '')`` for a usable scan or ``(None, reason)``."""
@@ -70,10 +72,15 @@ class ScanValidator:
         points = scan_to_points(usable, self.mounting)
         if len(points) < self.config.min_valid_points:
             return None, 'too_few_points'
+        invalid_before = self.events.counters['time_increment_invalid']
         times = sweep_times(scan, ranges.size, self.config.deskew,
-                            self.config.scan_stamp == 'last_beam', self.events)
+                            self.config.scan_stamp == 'last_beam', self.events,
+                            self._valid_increments.get(ranges.size))
         if times is not None:
             points.times = times[points.beam_index]
+            if self.events.counters['time_increment_invalid'] == invalid_before and (
+                    scan.time_increment):
+                self._valid_increments[ranges.size] = float(scan.time_increment)
         return points, ''
 
     def _check_length(self, scan: LaserScan, count: int) -> None:
