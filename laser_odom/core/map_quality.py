@@ -23,6 +23,14 @@ When wheel odometry is available, :func:`odometry_disagreement` compares the
 estimated motion over short windows with the odometry's (Sturm et al. relative error,
 IROS 2012, eq. 1, with the odometry in place of the reference), and
 :func:`reference_free_score` adds it, weighted, to the map entropy.
+
+Checked against the reference (issue 15): over 40 random pipeline settings each
+(plicp/nicp/imls, iterations, pairing distance, gates, keyframes, prior; some
+deliberately bad) on the first 1500 scans of fr079 and all of mit-csail, the Spearman
+rank correlation of the default :func:`map_entropy` with mean RPE is 0.97 / 0.95
+(translation) and 0.98 / 0.98 (rotation); ``measure='line_variance'`` ranks as well or
+slightly better among the good settings. Scoring takes about 0.1-0.2 s per 1000 scans
+of 360 points.
 """
 
 from __future__ import annotations
