@@ -94,11 +94,11 @@ def assert_finite(estimate) -> None:
         assert np.all(np.isfinite(value))
 
 
-# Each malformed scan that passes validation is matched, and a failed match runs the
-# global search and refines its best poses: these counts still produce every defect
-# hundreds of times.
-@pytest.mark.parametrize('matcher, count', [('icp', 2500)] + [
-    (name, 600) for name in matcher_names() if name != 'icp'])
+# Each malformed scan that passes validation is matched (and de-skewed, and matched again),
+# and a failed match runs the global search and refines its best poses: these counts
+# still produce each of the 18 defects about 40 (matchers) to 200 (icp) times.
+@pytest.mark.parametrize('matcher, count', [('icp', 1800)] + [
+    (name, 400) for name in matcher_names() if name != 'icp'])
 def test_fuzzed_scans_never_escape_or_corrupt(matcher, count):
     rng = np.random.default_rng(sum(map(ord, matcher)))
     said = []
