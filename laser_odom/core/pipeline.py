@@ -253,10 +253,10 @@ class OdometryPipeline:
         the motion over the step from the reference's stamp to the current one. That
         interval holds the reference's sweep when scans are stamped at their first beam,
         and the current sweep when stamped at the last; the other sweep is predicted
-        with the same twist (constant velocity). When the better twist moves the points
-        more than :data:`DESKEW_TOLERANCE`, or the reference has not been de-skewed with
-        a measured twist yet, both are de-skewed with it and matched again from the first
-        match, which is kept if the second is rejected.
+        with the same twist (constant velocity). When the measured twist would move the
+        current points - or those of a reference not yet de-skewed with a measured twist
+        - by more than :data:`DESKEW_TOLERANCE`, they are de-skewed with it and matched
+        again from the first match, which is kept if the second is rejected.
         """
         step = se2.relative(self.pose, se2.compose(self.keyframe_pose, verdict.pose))
         measured = twist_of_step(step, sweep_dt)
