@@ -12,6 +12,7 @@ from sensor_msgs.msg import Imu
 import yaml
 
 from laser_odom.core import se2
+from laser_odom.core.params import flatten
 from laser_odom.core.pipeline import OdometryEstimate
 from laser_odom.core.scan import LaserMounting, LaserScan, scan_to_points
 from laser_odom.core.settings import (
@@ -26,17 +27,6 @@ from laser_odom.ros.parameters import descriptor
 CONFIG_DIR = Path(__file__).resolve().parents[1] / 'config'
 NODE_KEYS = ('/**', 'laser_odom', '/laser_odom', '/**/laser_odom')
 """YAML keys under which rcl applies a file's parameters to the node /laser_odom."""
-
-
-def flatten(tree: dict, prefix: str = '') -> dict:
-    """Flatten nested YAML maps into dotted names, as rcl does."""
-    flat = {}
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            flat.update(flatten(value, f'{prefix}{key}.'))
-        else:
-            flat[f'{prefix}{key}'] = value
-    return flat
 
 
 def load_parameters(path: Path) -> dict:

@@ -127,6 +127,17 @@ def replace_checked(config: ConfigT, values: Mapping[str, Any], prefix: str = ''
     return dataclasses.replace(config, **changes)
 
 
+def flatten(values: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Return nested names as dotted ones, as ROS 2 does (``nicp: {h: 1}`` is ``nicp.h``)."""
+    flat: dict[str, Any] = {}
+    for key, value in values.items():
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, f'{prefix}{key}.'))
+        else:
+            flat[f'{prefix}{key}'] = value
+    return flat
+
+
 def as_dict(config: Any) -> dict[str, Any]:
     """Return the declared parameters of a configuration as a plain dict."""
     return {f.name: getattr(config, f.name) for f in param_fields(type(config))}

@@ -33,7 +33,7 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import yaml
 
-from laser_odom.core.params import ParameterError
+from laser_odom.core.params import flatten, ParameterError
 from laser_odom.core.settings import check_values, CheckedValues
 
 NODE_NAME = 'laser_odom'
@@ -96,23 +96,18 @@ def node_name_matches(pattern: str, node_fqn: str) -> bool:
         return False
 
 
-def flatten(values: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    """Return nested dicts as one dict with dotted keys.
+def rcl_values(values: Mapping[str, Any]) -> dict[str, Any]:
+    """Return a section's parameters with dotted names, as rcl reads them.
 
     Raises :class:`ValueError` where rcl refuses the file: a name without a value, or
     a list mixing types.
     """
-    flat: dict[str, Any] = {}
-    for key, value in values.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, Mapping):
-            flat.update(flatten(value, name + '.'))
-            continue
+    flat = flatten(values)
+    for name, value in flat.items():
         if value is None:
             raise ValueError(f'parameter {name!r} has no value')
         if isinstance(value, list) and len({type(v) for v in value}) > 1:
             raise ValueError(f'parameter {name!r}: a list must hold values of one type')
-        flat[name] = value
     return flat
 
 
@@ -136,7 +131,7 @@ def _sections(node: Any, path: Path, prefix: str) -> Iterator[tuple[str, dict[st
                        f'"{PARAMETERS_KEY}" is not a mapping')
             raise ParamsFileError(f'params file {path}: section {name!r} {problem}')
         try:
-            yield name, flatten(params)
+            yield name, rcl_values(params)
         except ValueError as err:
             raise ParamsFileError(f'params file {path}: section {name!r}: {err}') from None
 

@@ -33,7 +33,7 @@ from typing import Any, Mapping, Protocol, Sequence
 
 import yaml
 
-from laser_odom.core.params import ParamInfo, yaml_word
+from laser_odom.core.params import flatten, ParamInfo, yaml_word
 from laser_odom.core.settings import parameter_specs, ParameterSpec
 
 PIPELINE_PARAMETERS = (
@@ -200,17 +200,6 @@ def _override(dimension: Dimension, info: ParamInfo, values: list[Any]) -> Dimen
     return replace(dimension, low=low, high=high, log=dimension.log and low > 0)
 
 
-def _flatten(values: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    """Return nested names as dotted ones (``nicp: {h: ...}`` is ``nicp.h``)."""
-    flat: dict[str, Any] = {}
-    for key, value in values.items():
-        if isinstance(value, Mapping):
-            flat.update(_flatten(value, f'{prefix}{key}.'))
-        else:
-            flat[f'{prefix}{key}'] = value
-    return flat
-
-
 def read_space_file(path: str | Path, matchers: Sequence[str]) -> dict[str, list[Any]]:
     """Read a ``--space`` YAML file: ``name: [low, high]`` or ``name: [choice, ...]``.
 
@@ -219,7 +208,7 @@ def read_space_file(path: str | Path, matchers: Sequence[str]) -> dict[str, list
     """
     try:
         document = yaml.safe_load(Path(path).read_text())
-        flat = _flatten(document or {}) if isinstance(document or {}, Mapping) else None
+        flat = flatten(document or {}) if isinstance(document or {}, Mapping) else None
     except (OSError, UnicodeDecodeError) as err:
         raise SpaceError(f'cannot read --space file {path}: {err}') from None
     except yaml.YAMLError as err:
