@@ -106,17 +106,27 @@ def cast_fan(origin: np.ndarray, start: float, increment: float, count: int,
     pair_seg = np.repeat(owner, sizes)
     beam = np.repeat(first - offsets, sizes) + np.arange(total)
     angles = start + beam * increment
-    dx, dy = np.cos(angles), np.sin(angles)
-    sax, say = ax[pair_seg], ay[pair_seg]
-    ex, ey = (bx - ax)[pair_seg], (by - ay)[pair_seg]
+    _nearest_hits(ranges, beam, ax[pair_seg], ay[pair_seg], (bx - ax)[pair_seg],
+                  (by - ay)[pair_seg], np.cos(angles), np.sin(angles))
+    return ranges
+
+
+def _nearest_hits(ranges: np.ndarray, beam: np.ndarray, ax: np.ndarray, ay: np.ndarray,
+                  ex: np.ndarray, ey: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> None:
+    """Lower ``ranges[beam]`` to where each ray meets its paired segment, if it does.
+
+    Ray ``r(t) = t d`` from its origin, segment ``a + u e`` relative to that origin;
+    solving ``t d = a + u e`` (2x2, Cramer's rule) gives ``t`` along the ray and ``u``
+    along the segment; a hit has ``t > 0`` and ``0 <= u <= 1``. Near-parallel pairs
+    are skipped.
+    """
     denom = dx * ey - dy * ex
     valid = np.abs(denom) > PARALLEL_EPS * np.hypot(ex, ey)
     safe = np.where(valid, denom, 1.0)
-    t = (sax * ey - say * ex) / safe
-    u = (sax * dy - say * dx) / safe
+    t = (ax * ey - ay * ex) / safe
+    u = (ax * dy - ay * dx) / safe
     hit = valid & (t > 0.0) & (u >= 0.0) & (u <= 1.0)
     np.minimum.at(ranges, beam[hit], t[hit])
-    return ranges
 
 
 ANGLE_MARGIN = 1e-9
@@ -167,15 +177,8 @@ def cast_rays_from(origins: np.ndarray, angles: np.ndarray, segments: np.ndarray
     ox, oy = o[beam, 0], o[beam, 1]
     ax, ay = seg[owner, 0] - ox, seg[owner, 1] - oy
     bx, by = seg[owner, 2] - ox, seg[owner, 3] - oy
-    ex, ey = bx - ax, by - ay
-    dx, dy = np.cos(phi)[beam], np.sin(phi)[beam]
-    denom = dx * ey - dy * ex
-    valid = np.abs(denom) > PARALLEL_EPS * np.hypot(ex, ey)
-    safe = np.where(valid, denom, 1.0)
-    t = (ax * ey - ay * ex) / safe
-    u = (ax * dy - ay * dx) / safe
-    hit = valid & (t > 0.0) & (u >= 0.0) & (u <= 1.0)
-    np.minimum.at(ranges, beam[hit], t[hit])
+    _nearest_hits(ranges, beam, ax, ay, bx - ax, by - ay, np.cos(phi)[beam],
+                  np.sin(phi)[beam])
     return ranges
 
 
