@@ -226,8 +226,8 @@ def test_bag_without_reference_is_timed_only(user_bag, tmp_path, capsys):
     plain = tmp_path / 'plain'
     write_bag(plain, scans, odometry={'/odom': odometry})
     out = tmp_path / 'rows.json'
-    assert main(['--bag', str(plain), '--matchers', 'nicp', '--priors', 'odom',
-                 '--no-progress', '--no-search-table', '--json', str(out)]) == 0
+    assert main(['--bag', str(plain), '--scan-topic', 'scan', '--matchers', 'nicp',
+                 '--priors', 'odom', '--no-progress', '--no-search-table', '--json', str(out)]) == 0
     table = capsys.readouterr().out
     row, = json.loads(out.read_text())['rows']
     assert (row['dataset'], row['matcher'], row['failed'], row['steps']) == (
@@ -248,6 +248,7 @@ def test_bad_bag_is_one_line_and_exit_2(user_bag, tmp_path, capsys):
     cases = [
         (['--bag', str(tmp_path / 'missing')], 'bag not found'),
         (['--bag', str(no_scans)], 'no LaserScan topic'),
+        (['--bag', str(user_bag), '--scan-topic', '/front'], 'no topic /front in the bag'),
         (['--bag', str(user_bag), '--reference', str(other_clock)], 'does not overlap'),
         (['--bag', str(user_bag), '--reference', str(tmp_path / 'none.tum')],
          'reference file not found'),

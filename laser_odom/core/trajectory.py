@@ -99,3 +99,20 @@ class Dataset:
             raise ValueError('k must be at least 1')
         return Dataset(name or f'{self.name}/{k}', self.scans[::k], self.odometry,
                        self.reference)
+
+
+@dataclass
+class RecordedBag:
+    """One recorded bag in memory, as the tools use it: scans, priors and reference.
+
+    ``name`` is the bag's path; ``odometry`` is the wheel odometry (the ``odom`` prior
+    and the tuner's ``--odom-agreement``); ``reference_source`` names the reference (a
+    TUM file or the bag's ``/ground_truth`` topic) in messages.
+    """
+
+    name: str
+    scans: list[LaserScan]
+    odometry: Trajectory | None = None
+    imu: ImuSamples | None = None
+    reference: Trajectory | None = None
+    reference_source: str | None = None

@@ -1,9 +1,11 @@
-"""A recorded bag as a benchmark dataset: its scans, wheel odometry and reference.
+"""One reader of a recorded bag for the tools: its scans, wheel odometry, IMU, reference.
 
-``laser_odom_bench --bag`` reads a bag through
-:class:`laser_odom.io.bag_reader.BagReader`: the scans of its only ``LaserScan``
-topic, the ``/odom`` wheel odometry if present, and a reference - a TUM file given
-with it, or else the bag's ``/ground_truth`` Odometry topic.
+``laser_odom_bench --bag`` and ``laser_odom_tune`` read a bag through
+:class:`laser_odom.io.bag_reader.BagReader` with :func:`read_bag`: the scans of one
+``LaserScan`` topic (``--scan-topic``, default the only one), the wheel odometry of
+``/odom`` if present, the IMU if the bag has exactly one, and a reference - a TUM file
+given with it, or else the bag's ``/ground_truth`` Odometry topic. Every problem is a
+one-line ``ValueError`` or :class:`BagError`.
 """
 
 from __future__ import annotations
@@ -14,15 +16,15 @@ from typing import Callable, Collection, Sequence
 import numpy as np
 
 from laser_odom.core.metrics import associate
-from laser_odom.core.trajectory import Dataset, Trajectory
-from laser_odom.io.bag_reader import BagReader, LASER_SCAN, ODOMETRY
-from laser_odom.io.tum import read_tum
+from laser_odom.core.trajectory import Dataset, RecordedBag, Trajectory
+from laser_odom.io.bag_reader import BagReader, IMU, LASER_SCAN, ODOMETRY
+from laser_odom.io.tum import read_tum, TumFormatError
 
 BAG_ODOMETRY = '/odom'
-"""The wheel odometry topic of a ``--bag``."""
+"""The wheel odometry topic of a bag, unless a tool is told another."""
 
 BAG_GROUND_TRUTH = '/ground_truth'
-"""The reference topic of a ``--bag`` given no ``--reference``."""
+"""The reference topic of a bag given no reference file."""
 
 NO_REFERENCE = '-'
 """A ``--reference`` that gives its bag none (the bag's ``/ground_truth``, if any)."""
@@ -40,48 +42,68 @@ def bag_name(path: str, taken: Collection[str]) -> str:
 
 
 def bag_reference(reference: str | None) -> Trajectory | None:
-    """Read a ``--reference`` TUM file (None for none); ValueError in one line."""
+    """Read a reference TUM file (None for none); ValueError in one line."""
     if reference is None or reference == NO_REFERENCE:
         return None
     if not Path(reference).is_file():
         raise ValueError(f'reference file not found: {reference}')
-    return read_tum(reference)
+    try:
+        return read_tum(reference)
+    except (OSError, TumFormatError) as err:
+        raise ValueError(f'cannot read reference {reference}: {err}') from None
 
 
-def check_overlap(dataset: Dataset, source: str) -> None:
-    """Raise ValueError when the reference pairs with fewer than two scans in time."""
-    stamps = np.array([scan.stamp_ns for scan in dataset.scans], dtype=np.int64)
-    paired = len(associate(Trajectory(stamps, np.zeros((len(stamps), 3))),
-                           dataset.reference)[0])
-    if paired < 2:
-        raise ValueError(f'reference {source} does not overlap bag {dataset.name} in time: '
-                         f'it pairs with {paired} of {len(stamps)} scans (stamps within '
-                         '10 ms)')
+def read_bag(path: str, reference: str | None = None, scan_topic: str | None = None,
+             odom_topic: str = BAG_ODOMETRY, purpose: str = 'a benchmark') -> RecordedBag:
+    """Read a bag's scans, odometry, IMU and reference (``reference``, else ``/ground_truth``).
 
-
-def load_bag_dataset(path: str, name: str, reference: str | None = None) -> Dataset:
-    """Read a bag's scans, ``/odom`` and reference (``--reference``, else ``/ground_truth``).
-
-    Raises ValueError or :class:`BagError` (one line) for a missing bag, a bag without
-    scans and a reference that does not overlap the scans in time.
+    Raises ValueError or :class:`BagError` (one line) for a missing bag, an unknown or
+    ambiguous scan topic, fewer than two scans (``purpose`` says what needed them) and
+    an unreadable reference file.
     """
     truth = bag_reference(reference)
+    odom_topic = odom_topic if odom_topic.startswith('/') else '/' + odom_topic
     with BagReader(path) as bag:
-        scans = list(bag.scans(bag.select_topic(LASER_SCAN)))
+        scans = list(bag.scans(bag.select_topic(LASER_SCAN, scan_topic)))
         if len(scans) < 2:
-            raise ValueError(f'{path}: {len(scans)} scans; a benchmark needs a bag with scans')
-        odometry = (bag.odometry(BAG_ODOMETRY) if bag.topics.get(BAG_ODOMETRY) == ODOMETRY
-                    else Trajectory())
+            raise ValueError(f'{path}: {len(scans)} scans; {purpose} needs a bag with scans')
+        odometry = (bag.odometry(odom_topic) if bag.topics.get(odom_topic) == ODOMETRY
+                    else None)
+        imu_topics = bag.topics_of_type(IMU)
+        imu = bag.imu(imu_topics[0]) if len(imu_topics) == 1 else None
+        source = reference if truth is not None else None
         if truth is None and bag.topics.get(BAG_GROUND_TRUTH) == ODOMETRY:
-            truth, reference = bag.odometry(BAG_GROUND_TRUTH), f'{path}:{BAG_GROUND_TRUTH}'
-    dataset = Dataset(name, scans, odometry, truth if truth is not None else Trajectory())
-    if truth is not None:
-        check_overlap(dataset, str(reference))
-    return dataset
+            truth, source = bag.odometry(BAG_GROUND_TRUTH), f'{path}:{BAG_GROUND_TRUTH}'
+    return RecordedBag(str(path), scans, odometry, imu, truth, source)
 
 
-def bag_loaders(bags: Sequence[str], references: Sequence[str],
-                taken: Collection[str]) -> dict[str, Callable[[], Dataset]]:
+def check_overlap(bag: RecordedBag, name: str, min_coverage: float = 0.0) -> None:
+    """Raise ValueError when the reference pairs with too few of the bag's scans in time.
+
+    Too few is fewer than two, or fewer than ``min_coverage`` of the scans (the
+    replay's ``--min-coverage`` rule, with the scan stamps in place of poses).
+    """
+    stamps = np.array([scan.stamp_ns for scan in bag.scans], dtype=np.int64)
+    paired = (len(associate(Trajectory(stamps, np.zeros((len(stamps), 3))),
+                            bag.reference)[0]) if bag.reference is not None else 0)
+    if paired < 2 or paired < min_coverage * len(stamps):
+        rule = f'--min-coverage {min_coverage:g}' if min_coverage > 0 else 'stamps within 10 ms'
+        raise ValueError(f'reference {bag.reference_source} does not overlap {name} in time: '
+                         f'it pairs with {paired} of {len(stamps)} scans ({rule})')
+
+
+def load_bag_dataset(path: str, name: str, reference: str | None = None,
+                     scan_topic: str | None = None) -> Dataset:
+    """Read a bag as a benchmark dataset; one-line errors as :func:`read_bag`, overlap too."""
+    bag = read_bag(path, reference, scan_topic)
+    if bag.reference is not None:
+        check_overlap(bag, f'bag {name}')
+    return Dataset(name, bag.scans, bag.odometry if bag.odometry is not None else Trajectory(),
+                   bag.reference if bag.reference is not None else Trajectory())
+
+
+def bag_loaders(bags: Sequence[str], references: Sequence[str], taken: Collection[str],
+                scan_topic: str | None = None) -> dict[str, Callable[[], Dataset]]:
     """Read every ``--bag`` now (bad input fails before the runs); name -> loader.
 
     The i-th reference belongs to the i-th bag; names avoid those in ``taken``.
@@ -93,6 +115,6 @@ def bag_loaders(bags: Sequence[str], references: Sequence[str],
     for index, path in enumerate(bags):
         name = bag_name(path, [*taken, *loaders])
         reference = references[index] if index < len(references) else None
-        dataset = load_bag_dataset(path, name, reference)
+        dataset = load_bag_dataset(path, name, reference, scan_topic)
         loaders[name] = lambda dataset=dataset: dataset
     return loaders

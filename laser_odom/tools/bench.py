@@ -115,6 +115,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              f"{NO_REFERENCE!r}: none). Default: the bag's "
                              f'{BAG_GROUND_TRUTH} Odometry topic; without either the bag '
                              'is timed only (accuracy n/a)')
+    parser.add_argument('--scan-topic', default=None, metavar='TOPIC',
+                        help='LaserScan topic of every --bag (default: the only one)')
     parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA_DIR,
                         help='folder holding the real logs (default: ../shared/data)')
     parser.add_argument('--params-file', type=Path, default=None, metavar='YAML',
@@ -204,7 +206,7 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
     deskews: list[str | None] = (
         list(dict.fromkeys(_split(args.deskew, DESKEW_MODES, 'deskew value')))
         if args.deskew is not None else [None])
-    bags = bag_loaders(args.bag, args.reference, loaders)
+    bags = bag_loaders(args.bag, args.reference, loaders, args.scan_topic)
     loaders.update(bags)
     names = dataset_names(args, loaders, list(bags))
     rows: list[BenchRow] = []

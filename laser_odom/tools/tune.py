@@ -25,28 +25,23 @@ import sys
 import tempfile
 from typing import Any, Sequence
 
-import numpy as np
-
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.metrics import associate
 from laser_odom.core.settings import parameter_specs
-from laser_odom.core.trajectory import Trajectory
-from laser_odom.core.tuning.objective import OBJECTIVES, REFERENCE_FREE, TuneBag
+from laser_odom.core.trajectory import RecordedBag
+from laser_odom.core.tuning.objective import OBJECTIVES, REFERENCE_FREE
 from laser_odom.core.tuning.space import (
     BASE_PRIORS, matcher_space, read_space_file, SpaceError)
 from laser_odom.core.tuning.study import (
     open_storage, plot_data, run_studies, StorageError, StudySummary, summarize,
     table_lines, TuneJob)
-from laser_odom.io.bag_reader import BagError, BagReader, IMU, LASER_SCAN, ODOMETRY
+from laser_odom.io.bag_dataset import BAG_GROUND_TRUTH, check_overlap, read_bag
+from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
-from laser_odom.io.tum import read_tum, TumFormatError
 from laser_odom.ros.default_params import yaml_value
 from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import DEFAULT_MIN_COVERAGE
 
 PROG = 'laser_odom_tune'
-GROUND_TRUTH = '/ground_truth'
-"""Odometry topic taken as the reference when no ``--reference`` is given."""
 
 
 class TuneError(Exception):
@@ -65,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--trials', type=int, default=60, help='trials per matcher (default 60)')
     p.add_argument('--reference', type=Path, action='append', default=[], metavar='REF.tum',
                    help='reference TUM file, one per bag in order (default: the '
-                   f'{GROUND_TRUTH} topic of the bag)')
+                   f'{BAG_GROUND_TRUTH} topic of the bag)')
     p.add_argument('--objective', choices=OBJECTIVES, default='rpe',
                    help='score against the reference: rpe (mean translational RPE + 1 m/rad '
                    'x mean rotational RPE + 0.01 per failed step) or ate (default: rpe)')
@@ -95,52 +90,25 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _read_reference(path: Path) -> Trajectory:
-    """Read a reference TUM file; TuneError when missing or malformed."""
-    try:
-        return read_tum(path)
-    except FileNotFoundError:
-        raise TuneError(f'reference file not found: {path}') from None
-    except (OSError, TumFormatError) as err:
-        raise TuneError(f'cannot read reference {path}: {err}') from None
-
-
-def check_overlap(bag: TuneBag, reference_name: str, min_coverage: float) -> None:
-    """Raise TuneError when the reference pairs with too few of the bag's scans in time.
-
-    The replay's rule (``--min-coverage``), with the scan stamps in place of poses.
-    """
-    stamps = Trajectory(np.array([s.stamp_ns for s in bag.scans], dtype=np.int64),
-                        np.zeros((len(bag.scans), 3)))
-    paired = len(associate(stamps, bag.reference)[0]) if bag.reference is not None else 0
-    if paired < 2 or paired < min_coverage * len(stamps):
-        raise TuneError(f'reference {reference_name} does not overlap {bag.name} in time: '
-                        f'it pairs with {paired} of {len(stamps)} scans (--min-coverage '
-                        f'{min_coverage:g})')
-
-
 def load_bag(path: str, reference: str | None, scan_topic: str | None,
-             odom_topic: str) -> TuneBag:
-    """Read one bag's scans (in bag order, as the replay), odometry, IMU and reference."""
-    odom_topic = odom_topic if odom_topic.startswith('/') else '/' + odom_topic
-    with BagReader(path) as bag:
-        scans = list(bag.scans(bag.select_topic(LASER_SCAN, scan_topic)))
-        if len(scans) < 2:
-            raise TuneError(f'{path}: {len(scans)} scans; tuning needs a bag with scans')
-        odometry = (bag.odometry(odom_topic) if bag.topics.get(odom_topic) == ODOMETRY
-                    else None)
-        imu_topics = bag.topics_of_type(IMU)
-        imu = bag.imu(imu_topics[0]) if len(imu_topics) == 1 else None
-        truth = (bag.odometry(GROUND_TRUTH) if reference is None
-                 and bag.topics.get(GROUND_TRUTH) == ODOMETRY else None)
-    tuned = TuneBag(str(path), scans, odometry, imu, truth)
-    if reference is not None:
-        tuned.reference = _read_reference(Path(reference))
-    return tuned
+             odom_topic: str) -> RecordedBag:
+    """Read one bag (in bag order, as the replay) with the tools' one bag reader."""
+    try:
+        return read_bag(path, reference, scan_topic, odom_topic, purpose='tuning')
+    except ValueError as err:
+        raise TuneError(str(err)) from None
+
+
+def check_reference_overlap(bag: RecordedBag, min_coverage: float) -> None:
+    """Raise TuneError when the reference pairs with too few of the bag's scans in time."""
+    try:
+        check_overlap(bag, bag.name, min_coverage)
+    except ValueError as err:
+        raise TuneError(str(err)) from None
 
 
 def load_bags(paths: Sequence[str], references: Sequence[str | None],
-              scan_topic: str | None, odom_topic: str) -> list[TuneBag]:
+              scan_topic: str | None, odom_topic: str) -> list[RecordedBag]:
     """Read every bag (also what each ``--jobs`` process calls)."""
     return [load_bag(p, r, scan_topic, odom_topic) for p, r in zip(paths, references)]
 
@@ -163,7 +131,7 @@ def _require(module: str, package: str, what: str) -> None:
         raise TuneError(f'{what} needs {package}: pip install {package}') from None
 
 
-def _objective_name(args: argparse.Namespace, bags: list[TuneBag], warn: Any) -> str:
+def _objective_name(args: argparse.Namespace, bags: list[RecordedBag], warn: Any) -> str:
     """Return the score to use: the ``--objective``, or reference-free without references."""
     odom_weight = args.odom_agreement
     if not math.isfinite(odom_weight) or odom_weight < 0.0:
@@ -171,7 +139,7 @@ def _objective_name(args: argparse.Namespace, bags: list[TuneBag], warn: Any) ->
     missing = [b.name for b in bags if b.reference is None]
     objective = REFERENCE_FREE if args.reference_free or missing else args.objective
     if missing and not args.reference_free:
-        warn(f'no reference for {missing[0]} (no --reference, no {GROUND_TRUTH} topic): '
+        warn(f'no reference for {missing[0]} (no --reference, no {BAG_GROUND_TRUTH} topic): '
              'scoring every bag reference-free')
     if odom_weight > 0.0:
         if objective != REFERENCE_FREE:
@@ -182,8 +150,8 @@ def _objective_name(args: argparse.Namespace, bags: list[TuneBag], warn: Any) ->
             raise TuneError(f'--odom-agreement: {lacking[0]} has no {args.odom_topic} '
                             'Odometry topic')
     if objective != REFERENCE_FREE:
-        for bag, ref in zip(bags, args.reference or [GROUND_TRUTH] * len(bags)):
-            check_overlap(bag, str(ref), args.min_coverage)
+        for bag in bags:
+            check_reference_overlap(bag, args.min_coverage)
     return objective
 
 
@@ -225,7 +193,7 @@ def write_output(path: Path, text: str) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def plot(path: Path, job: TuneJob, storage: Any, bags: list[TuneBag],
+def plot(path: Path, job: TuneJob, storage: Any, bags: list[RecordedBag],
          summaries: list[StudySummary]) -> None:
     """Draw each study's scores and each matcher's best run on the first bag (``--plot``)."""
     from laser_odom.tools import plots  # matplotlib: only when asked for

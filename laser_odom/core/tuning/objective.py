@@ -35,7 +35,7 @@ from laser_odom.core.priors import PriorFeed
 from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import LaserScan
 from laser_odom.core.settings import settings_from_params
-from laser_odom.core.trajectory import ImuSamples, Trajectory
+from laser_odom.core.trajectory import RecordedBag, Trajectory
 
 OBJECTIVES = ('rpe', 'ate')
 """Scores against a reference (``--objective``)."""
@@ -58,18 +58,6 @@ the study goes on."""
 
 Reporter = Callable[[int, float], None]
 """``report(step, score_so_far)``; it raises to stop a hopeless trial."""
-
-
-@dataclass
-class TuneBag:
-    """What a trial needs of one bag: its scans, priors and reference, in memory."""
-
-    name: str
-    scans: list[LaserScan]
-    odometry: Trajectory | None = None
-    """Wheel odometry (``/odom``): the ``odom`` prior and ``--odom-agreement``."""
-    imu: ImuSamples | None = None
-    reference: Trajectory | None = None
 
 
 @dataclass
@@ -104,7 +92,7 @@ class _Run:
                           np.array(self.poses).reshape(-1, 3))
 
 
-def score_run(run: _Run, bag: TuneBag, objective: str, odom_weight: float = 0.0) -> float:
+def score_run(run: _Run, bag: RecordedBag, objective: str, odom_weight: float = 0.0) -> float:
     """Return the score of one bag's (partial) run; ValueError when it cannot be scored."""
     trajectory = run.trajectory()
     if len(trajectory) < 2:
@@ -123,7 +111,7 @@ def score_run(run: _Run, bag: TuneBag, objective: str, odom_weight: float = 0.0)
             + FAILED_STEP_PENALTY * errors.failed_steps)
 
 
-def _pipeline(values: Mapping[str, Any], bag: TuneBag) -> tuple[OdometryPipeline, PriorFeed]:
+def _pipeline(values: Mapping[str, Any], bag: RecordedBag) -> tuple[OdometryPipeline, PriorFeed]:
     """Build the pipeline and prior feed the node would run with ``values`` on ``bag``."""
     settings = settings_from_params(values)
     pipeline = OdometryPipeline(settings.pipeline, events=EventLog(lambda message: None))
@@ -135,13 +123,13 @@ def _pipeline(values: Mapping[str, Any], bag: TuneBag) -> tuple[OdometryPipeline
     return pipeline, PriorFeed(prior, settings.priors, bag.odometry, bag.imu)
 
 
-def _chunks(bag: TuneBag, split: bool) -> list[list[LaserScan]]:
+def _chunks(bag: RecordedBag, split: bool) -> list[list[LaserScan]]:
     """Return the bag's scans whole, or in two halves (a checkpoint for pruning)."""
     half = len(bag.scans) // 2
     return [bag.scans[:half], bag.scans[half:]] if split and half >= 2 else [bag.scans]
 
 
-def run_trial(values: Mapping[str, Any], bags: Sequence[TuneBag], objective: str,
+def run_trial(values: Mapping[str, Any], bags: Sequence[RecordedBag], objective: str,
               odom_weight: float = 0.0, report: Reporter | None = None,
               keep_trajectories: bool = False) -> TrialResult:
     """Run ``values`` over every bag and return the score (lower is better).

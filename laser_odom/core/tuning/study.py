@@ -21,7 +21,8 @@ import sys
 import time
 from typing import Any, Callable, Sequence
 
-from laser_odom.core.tuning.objective import FAILED_TRIAL_SCORE, run_trial, TuneBag
+from laser_odom.core.trajectory import RecordedBag
+from laser_odom.core.tuning.objective import FAILED_TRIAL_SCORE, run_trial
 from laser_odom.core.tuning.space import Dimension, start_values, suggest
 
 MEDIAN_PRUNER_STARTUP = 5
@@ -42,7 +43,7 @@ class StorageError(ValueError):
 class TuneJob:
     """Everything a worker process needs: picklable, the bags as a loader to call."""
 
-    load_bags: Callable[[], list[TuneBag]]
+    load_bags: Callable[[], list[RecordedBag]]
     spaces: dict[str, list[Dimension]]
     """Per matcher, its search space."""
     base: dict[str, Any]
@@ -134,7 +135,7 @@ def prepare_studies(job: TuneJob, storage: Any) -> dict[str, int]:
     return existing
 
 
-def _objective(job: TuneJob, matcher: str, bags: list[TuneBag]) -> Callable[[Any], float]:
+def _objective(job: TuneJob, matcher: str, bags: list[RecordedBag]) -> Callable[[Any], float]:
     """Return the Optuna objective of one matcher's study."""
     import optuna
 
@@ -271,7 +272,7 @@ def table_lines(summaries: Sequence[StudySummary], objective: str) -> list[str]:
     return lines
 
 
-def plot_data(job: TuneJob, storage: Any, bags: list[TuneBag],
+def plot_data(job: TuneJob, storage: Any, bags: list[RecordedBag],
               summaries: Sequence[StudySummary]) -> tuple[dict, dict]:
     """Return what ``plot_study`` draws: the scores of the trials, the best runs.
 
