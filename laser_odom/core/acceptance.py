@@ -21,6 +21,7 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.config import AcceptanceConfig, PipelineConfig
+from laser_odom.core.degeneracy import degenerate_directions, metric_scale
 from laser_odom.core.matchers import MatchResult
 from laser_odom.core.search import SearchWindow
 
@@ -122,33 +123,6 @@ def describe_rejection(reason: str, match: MatchResult, guess: se2.Pose,
                 f'outside the search window +-{window.linear:.2f} m / '
                 f'+-{math.degrees(window.angular):.1f} deg')
     return reason.replace('_', ' ')
-
-
-def metric_scale(length_scale: float) -> np.ndarray:
-    """Return S = diag(1, 1, L): ``x = S x'`` maps ``[x, y, L theta]`` to ``[x, y, theta]``.
-
-    Translation and rotation have different units; a rotation by theta moves points
-    about ``L * theta`` metres, with L the typical range of the scan's points.
-    """
-    return np.array([1.0, 1.0, 1.0 / max(length_scale, 1e-3)])
-
-
-def degenerate_directions(information: np.ndarray, length_scale: float,
-                          min_information: float
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Eigen-decompose the information in metric units; flag the weak directions.
-
-    With ``H' = S H S`` (eigenvalues comparable, in 1/m^2), returns its eigenvalues,
-    orthonormal eigenvectors, and which eigenvalues fall below ``min_information``.
-    The threshold is absolute, not relative to the strongest direction: a long
-    corridor with a few door frames is weak along its axis compared with across it,
-    yet those features still pin the motion to a centimetre.
-    """
-    scale = metric_scale(length_scale)
-    scaled = (information * scale[:, None]) * scale[None, :]
-    values, vectors = np.linalg.eigh(0.5 * (scaled + scaled.T))
-    weak = values < min_information
-    return values, vectors, weak
 
 
 def judge_match(registration: Registration, guess: se2.Pose, config: PipelineConfig,

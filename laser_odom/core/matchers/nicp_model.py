@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from laser_odom.core.degeneracy import degenerate_directions
 from laser_odom.core.matchers.nicp_surface import NicpSurface
 
 
@@ -148,11 +149,9 @@ def is_degenerate(information: np.ndarray, length_scale: float,
                   min_information: float) -> bool:
     """Tell whether some direction of the information is too weak to trust.
 
-    The pipeline's acceptance test (:func:`laser_odom.core.acceptance.
+    The pipeline's acceptance test (:func:`laser_odom.core.degeneracy.
     degenerate_directions`), so that the matcher's flag and the pipeline agree:
     rotation is measured as the arc at the scan's RMS range ``length_scale`` and any
     eigenvalue below ``min_information`` [1/m^2] (a featureless corridor's axis) is weak.
     """
-    # Imported here: the acceptance module imports the matcher registry.
-    from laser_odom.core.acceptance import degenerate_directions
     return bool(np.any(degenerate_directions(information, length_scale, min_information)[2]))
