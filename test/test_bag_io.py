@@ -145,7 +145,8 @@ def test_tum_round_trip_is_exact(tmp_path):
     ('1.0 2 x 0 0 0 0 1', 'not a number'),
     ('1.0 2 3 0 0 0 0 0', 'zero quaternion'),
     ('1.0 nan 3 0 0 0 0 1', 'non-finite'),
-    ('0.5 0 0 0 0 0 0 1', 'stamp 0.5 does not increase'),
+    ('0.5 0 0 0 0 0 0 1', r'stamp 0.500000000 is not after the one before it \(0.900000000\)'),
+    ('9e-1 0 0 0 0 0 0 1', r'stamp 0.900000000 is not after the one before it \(0.900000000\)'),
 ])
 def test_tum_errors_name_the_line(tmp_path, line, message):
     path = tmp_path / 'bad.tum'

@@ -227,7 +227,8 @@ def test_bag_without_reference_is_timed_only(user_bag, tmp_path, capsys):
     write_bag(plain, scans, odometry={'/odom': odometry})
     out = tmp_path / 'rows.json'
     assert main(['--bag', str(plain), '--scan-topic', 'scan', '--matchers', 'nicp',
-                 '--priors', 'odom', '--no-progress', '--no-search-table', '--json', str(out)]) == 0
+                 '--priors', 'odom', '--no-progress', '--no-search-table', '--json',
+                 str(out)]) == 0
     table = capsys.readouterr().out
     row, = json.loads(out.read_text())['rows']
     assert (row['dataset'], row['matcher'], row['failed'], row['steps']) == (

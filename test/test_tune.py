@@ -90,7 +90,8 @@ def test_space_file_overrides_and_its_mistakes_are_one_line(tmp_path):
     for text, message in (('nicp.h_typo: [1, 2]\n', 'not a tunable parameter'),
                           ('prior: [odom]\n', 'not every bag has the topic'),
                           ('min_inlier_ratio: [0.5, 2.0]\n', 'leaves the declared range'),
-                          ('global_search: [sometimes]\n', 'is not one of')):
+                          ('global_search: [sometimes]\n', 'is not one of'),
+                          ('global_search: []\n', 'empty choice list; give at least one')):
         path.write_text(text)
         with pytest.raises(SpaceError, match=message) as error:
             matcher_space('nicp', {}, ('none', 'constant_velocity'),
@@ -155,6 +156,12 @@ def test_a_resumed_study_continues_its_trial_count(sim, tmp_path, capsys):
     trials = _study(storage, 'resume-plicp').trials
     assert [t.number for t in trials] == [0, 1, 2, 3]
     assert [t.number for t in trials if t.user_attrs.get('default')] == [0]
+    # Its scores mean mean RPE on this bag: another objective may not join them.
+    assert main(args + ['--objective', 'ate']) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('laser_odom_tune: error: study resume-plicp was scored by rpe on '
+                          'bag (100 scans), this run would score by ate on bag (100 scans)')
+    assert '\n' not in err and len(_study(storage, 'resume-plicp').trials) == 4
 
 
 def test_two_processes_share_one_sqlite_study(sim, tmp_path):
@@ -177,9 +184,12 @@ def test_two_processes_share_one_sqlite_study(sim, tmp_path):
 def test_jobs_run_parallel_processes_on_a_temporary_storage(sim, tmp_path, capsys,
                                                             monkeypatch):
     made = []
+    real_mkdtemp = tune_module.tempfile.mkdtemp
 
-    def mkdtemp(prefix: str) -> str:
-        made.append(tmp_path / f'{prefix}study')
+    def mkdtemp(*args, **kwargs) -> str:
+        if kwargs.get('prefix') != 'laser_odom_tune.':  # not the storage's
+            return real_mkdtemp(*args, **kwargs)
+        made.append(tmp_path / 'laser_odom_tune.study')
         made[-1].mkdir()
         return str(made[-1])
     monkeypatch.setattr(tune_module.tempfile, 'mkdtemp', mkdtemp)
@@ -245,6 +255,8 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
     far = tmp_path / 'far.tum'
     reference = load_bag(str(sim / 'bag'), None, None, '/odom').reference
     write_tum(far, type(reference)(reference.stamps_ns + 10 ** 12, reference.poses))
+    half = tmp_path / 'half.tum'
+    write_tum(half, type(reference)(reference.stamps_ns[:40], reference.poses[:40]))
     empty = tmp_path / 'space.yaml'
     empty.write_text('nicp.max_iterations: [50, 10]\n')
     no_scans = tmp_path / 'no_scans'
@@ -253,6 +265,9 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
     return {
         'no scans': ([str(no_scans)], 'no LaserScan topic'),
         'no overlap': ([bag, '--reference', str(far)], 'does not overlap'),
+        'little overlap': ([bag, '--reference', str(half)],
+                           'tune0/bag (40%), less than --min-coverage 0.5'),
+        'odom topic': ([bag, '--odom-topic', 'odm'], 'no topic /odm in the bag'),
         'empty range': ([bag, '--space', str(empty)], 'empty range'),
         'postgres': ([bag, '--storage', 'postgresql://nobody@127.0.0.1:1/x'],
                      'cannot open storage'),

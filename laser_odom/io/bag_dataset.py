@@ -27,7 +27,7 @@ BAG_GROUND_TRUTH = '/ground_truth'
 """The reference topic of a bag given no reference file."""
 
 NO_REFERENCE = '-'
-"""A ``--reference`` that gives its bag none (the bag's ``/ground_truth``, if any)."""
+"""A ``--reference`` that gives its bag no file (the bag's ``/ground_truth``, if any)."""
 
 
 def bag_name(path: str, taken: Collection[str]) -> str:
@@ -54,21 +54,24 @@ def bag_reference(reference: str | None) -> Trajectory | None:
 
 
 def read_bag(path: str, reference: str | None = None, scan_topic: str | None = None,
-             odom_topic: str = BAG_ODOMETRY, purpose: str = 'a benchmark') -> RecordedBag:
+             odom_topic: str | None = None, purpose: str = 'a benchmark') -> RecordedBag:
     """Read a bag's scans, odometry, IMU and reference (``reference``, else ``/ground_truth``).
 
-    Raises ValueError or :class:`BagError` (one line) for a missing bag, an unknown or
-    ambiguous scan topic, fewer than two scans (``purpose`` says what needed them) and
-    an unreadable reference file.
+    The wheel odometry is ``odom_topic`` - which the bag must then have - or else
+    ``/odom`` if present. Raises ValueError or :class:`BagError` (one line) for a
+    missing bag, an unknown or ambiguous scan topic, fewer than two scans (``purpose``
+    says what needed them), a missing ``odom_topic`` and an unreadable reference file.
     """
     truth = bag_reference(reference)
-    odom_topic = odom_topic if odom_topic.startswith('/') else '/' + odom_topic
     with BagReader(path) as bag:
         scans = list(bag.scans(bag.select_topic(LASER_SCAN, scan_topic)))
         if len(scans) < 2:
             raise ValueError(f'{path}: {len(scans)} scans; {purpose} needs a bag with scans')
-        odometry = (bag.odometry(odom_topic) if bag.topics.get(odom_topic) == ODOMETRY
-                    else None)
+        if odom_topic is not None:
+            odom_topic = bag.select_topic(ODOMETRY, odom_topic, '--odom-topic')
+        elif bag.topics.get(BAG_ODOMETRY) == ODOMETRY:
+            odom_topic = BAG_ODOMETRY
+        odometry = bag.odometry(odom_topic) if odom_topic is not None else None
         imu_topics = bag.topics_of_type(IMU)
         imu = bag.imu(imu_topics[0]) if len(imu_topics) == 1 else None
         source = reference if truth is not None else None
@@ -86,10 +89,14 @@ def check_overlap(bag: RecordedBag, name: str, min_coverage: float = 0.0) -> Non
     stamps = np.array([scan.stamp_ns for scan in bag.scans], dtype=np.int64)
     paired = (len(associate(Trajectory(stamps, np.zeros((len(stamps), 3))),
                             bag.reference)[0]) if bag.reference is not None else 0)
-    if paired < 2 or paired < min_coverage * len(stamps):
-        rule = f'--min-coverage {min_coverage:g}' if min_coverage > 0 else 'stamps within 10 ms'
+    if paired < 2:
         raise ValueError(f'reference {bag.reference_source} does not overlap {name} in time: '
-                         f'it pairs with {paired} of {len(stamps)} scans ({rule})')
+                         f'it pairs with {paired} of {len(stamps)} scans (stamps within '
+                         '10 ms)')
+    if paired < min_coverage * len(stamps):
+        raise ValueError(f'reference {bag.reference_source} covers only {paired} of '
+                         f'{len(stamps)} scans of {name} ({paired / len(stamps):.0%}), less '
+                         f'than --min-coverage {min_coverage:g}')
 
 
 def load_bag_dataset(path: str, name: str, reference: str | None = None,

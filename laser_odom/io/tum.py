@@ -10,15 +10,14 @@ from __future__ import annotations
 
 from decimal import Decimal, InvalidOperation
 import math
-import os
 from pathlib import Path
-import secrets
 
 import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.errors import OutputExistsError
+from laser_odom.io.text_output import write_text_atomically
 
 HEADER = '# timestamp x y z qx qy qz qw'
 FIELDS = 8
@@ -45,7 +44,7 @@ def parse_stamp(text: str) -> int:
 
 
 def write_tum(path: str | Path, trajectory: Trajectory, overwrite: bool = True) -> None:
-    """Write ``trajectory`` to ``path`` atomically (temporary file + ``os.replace``).
+    """Write ``trajectory`` to ``path`` atomically (:func:`write_text_atomically`).
 
     With ``overwrite=False`` an existing ``path`` raises :class:`OutputExistsError`.
     A reader never sees a half-written file, and a failed write leaves nothing behind.
@@ -60,15 +59,7 @@ def write_tum(path: str | Path, trajectory: Trajectory, overwrite: bool = True) 
     for i, stamp in enumerate(trajectory.stamps_ns):
         lines.append(f'{format_stamp(int(stamp))} {poses[i, 0]:.9f} {poses[i, 1]:.9f} '
                      f'0 0 0 {qz[i]:.12f} {qw[i]:.12f}')
-    text = '\n'.join(lines) + '\n'
-    tmp = path.with_name(f'.{path.name}.{os.getpid()}.{secrets.token_hex(4)}.partial')
-    try:
-        with tmp.open('x', encoding='ascii') as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_text_atomically(path, '\n'.join(lines) + '\n', encoding='ascii')
 
 
 def _parse_line(line: str, where: str) -> tuple[int, np.ndarray]:
@@ -107,7 +98,8 @@ def read_tum(path: str | Path) -> Trajectory:
             where = f'{path}:{number}'
             stamp, pose = _parse_line(text, where)
             if stamps and stamp <= stamps[-1]:
-                raise TumFormatError(f'{where}: stamp {text.split()[0]} does not increase')
+                raise TumFormatError(f'{where}: stamp {format_stamp(stamp)} is not after the '
+                                     f'one before it ({format_stamp(stamps[-1])})')
             stamps.append(stamp)
             poses.append(pose)
     if not stamps:

@@ -43,6 +43,7 @@ from laser_odom.io.bag_dataset import (
     BAG_GROUND_TRUTH, bag_loaders, BAG_ODOMETRY, NO_REFERENCE)
 from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.io.text_output import write_text_atomically
 from laser_odom.tools.bench_table import format_search_table, format_table, machine_line
 from laser_odom.tools.quiet import warnings_silenced
 
@@ -112,7 +113,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              '--datasets or --grid only the bags run')
     parser.add_argument('--reference', action='append', default=[], metavar='REF.tum',
                         help='reference TUM file of the i-th --bag (repeatable; '
-                             f"{NO_REFERENCE!r}: none). Default: the bag's "
+                             f"{NO_REFERENCE!r}: no file). Default: the bag's "
                              f'{BAG_GROUND_TRUTH} Odometry topic; without either the bag '
                              'is timed only (accuracy n/a)')
     parser.add_argument('--scan-topic', default=None, metavar='TOPIC',
@@ -257,7 +258,7 @@ def main_offline(args: argparse.Namespace) -> int:
         payload = {'machine': machine_line().lstrip('# '),
                    'rows': [row.as_dict() for row in rows],
                    'search': [row.as_dict() for row in searches]}
-        args.json.write_text(json.dumps(payload, indent=2) + '\n')
+        write_text_atomically(args.json, json.dumps(payload, indent=2) + '\n')
     return 0
 
 
@@ -275,8 +276,9 @@ def main_live(args: argparse.Namespace) -> int:
     print(machine_line())
     print(format_live(rows, args.beams, args.rate, args.duration))
     if args.json is not None:
-        args.json.write_text(json.dumps({'machine': machine_line().lstrip('# '),
-                                         'live': [vars(row) for row in rows]}, indent=2))
+        write_text_atomically(args.json, json.dumps(
+            {'machine': machine_line().lstrip('# '), 'live': [vars(row) for row in rows]},
+            indent=2) + '\n')
     return 0
 
 

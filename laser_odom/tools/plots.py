@@ -228,16 +228,26 @@ def _compare(estimate: Trajectory, reference: TrajectoryArrays | None,
 
 def _draw_scores(ax: Any, studies: dict[str, list[tuple[int, float]]],
                  colours: dict[str, Any]) -> None:
-    """Draw every trial's score and the running best per matcher."""
+    """Draw every trial's score and the running best per matcher.
+
+    Scores span decades (a failed trial scores a large penalty), so the axis is
+    logarithmic when every score is positive; trial numbers are whole.
+    """
+    from matplotlib.ticker import MaxNLocator
+    positive = True
     for matcher, trials in studies.items():
         finite = sorted((n, v) for n, v in trials if v is not None and np.isfinite(v))
         if not finite:
             continue
         numbers, scores = np.array(finite, dtype=float).T
+        positive = positive and bool(np.all(scores > 0.0))
         ax.plot(numbers, scores, '.', color=colours[matcher], ms=5, alpha=0.6,
                 label=f'{matcher} trials')
         ax.step(numbers, np.minimum.accumulate(scores), where='post', color=colours[matcher],
                 lw=1.5, label=f'{matcher} best so far')
+    if positive and any(studies.values()):
+        ax.set_yscale('log')
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel('trial number')
     ax.set_ylabel('score (lower is better)')
     ax.set_title('score of the trials')

@@ -39,6 +39,7 @@ from laser_odom.io.bag_reader import (
     BagError, BagReader, BagTruncatedError, LASER_SCAN)
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.tools.arguments import number_in
 from laser_odom.tools.plots import (
     check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
 from laser_odom.tools.quiet import warnings_silenced
@@ -49,20 +50,6 @@ from laser_odom.tools.replay_report import (
 PROG = 'laser_odom_replay'
 PROGRESS_EVERY = 500
 """Scans between two progress lines (unless --quiet)."""
-
-
-def _number(low: float, high: float, low_open: bool = False) -> Callable[[str], float]:
-    """Return an argparse type: a finite float in ``[low, high]`` (``(low, high]``)."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-        if not (low < value if low_open else low <= value) or not value <= high:
-            bracket = '(' if low_open else '['
-            raise argparse.ArgumentTypeError(f'{text} is outside {bracket}{low:g}, {high:g}]')
-        return value
-    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -87,7 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--reference', type=Path,
                    help='reference TUM file: print how many poses it pairs with, ATE '
                    '(SE(2)-aligned) and RPE')
-    p.add_argument('--min-coverage', type=_number(0.0, 1.0), default=DEFAULT_MIN_COVERAGE,
+    p.add_argument('--min-coverage', type=number_in(float, 0.0, 1.0, what='number'),
+                   default=DEFAULT_MIN_COVERAGE,
                    metavar='FRACTION',
                    help='--reference: fail (exit 2) when less than this fraction of the '
                    'estimated poses pair with a reference pose; the outputs are written '
@@ -108,7 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--timeout', type=float, default=2.0,
                    help='--live: seconds to wait for the odometry of one scan (with '
                    '--rate: of the last one)')
-    p.add_argument('--rate', type=_number(0.0, 1e6, low_open=True), metavar='R',
+    p.add_argument('--rate', type=number_in(float, 0.0, 1e6, low_open=True, what='number'),
+                   metavar='R',
                    help='--live: play the scans (and prior messages) at R times their '
                    'recorded rate, by their stamps, without waiting for the odometry '
                    '(like ros2 bag play --rate); reports the scans the node skipped. '
@@ -217,8 +206,6 @@ def write_plot(record: ReplayRecord, points: ScanPointsRecorder | None,
     trajectory = record.trajectory()
     plot_replay(args.plot, trajectory.stamps_ns, trajectory.poses,
                 None if points is None else points.points, reference)
-    if not args.quiet:
-        print(f'wrote {args.plot}', flush=True)
 
 
 def replay(args: argparse.Namespace) -> int:
@@ -261,6 +248,9 @@ def replay(args: argparse.Namespace) -> int:
         if damage is None:
             raise
         problem = f'; {err}'
+    finally:
+        if args.plot is not None and not args.quiet:
+            print(f'wrote {args.plot}', flush=True)  # after the summary it illustrates
     if damage is not None:
         raise ReplayError(f'{damage}; {len(record.stamps_ns)} scans processed'
                           + (', outputs written' if args.tum or args.output_bag else '')

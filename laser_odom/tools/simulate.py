@@ -14,7 +14,7 @@ import argparse
 import math
 from pathlib import Path
 import sys
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -25,25 +25,9 @@ from laser_odom.core.simulation import (
 from laser_odom.io.bag_writer import STORAGES, write_bag
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.tum import write_tum
+from laser_odom.tools.arguments import number_in
 
 PROG = 'laser_odom_simulate'
-
-
-def _number(kind: type, low: float, high: float, low_open: bool = False,
-            what: str = 'value') -> Callable[[str], float]:
-    """Return an argparse type that parses ``kind`` and checks its range."""
-    def parse(text: str) -> float:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f'{text!r} is not a valid {what}') from None
-        if not math.isfinite(value) or value < low or value > high or (
-                low_open and value == low):
-            bracket = '(' if low_open else '['
-            raise argparse.ArgumentTypeError(
-                f'{text} is outside {bracket}{low:g}, {high:g}]')
-        return value
-    return parse
 
 
 LASER_OPTIONS = {'beams': 'beams', 'fov': 'fov', 'max_range': 'max_range',
@@ -74,10 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help='how the robot drives: gentle (0.45 m/s), spin (stops to turn in '
                    'place at up to 3 rad/s) or aggressive (up to 1.5 m/s, fast '
                    f'accelerations) (default: {DEFAULT_MOTION})')
-    p.add_argument('--drop', type=_number(float, 0.0, 0.99), default=0.0, metavar='P',
+    p.add_argument('--drop', type=number_in(float, 0.0, 0.99), default=0.0, metavar='P',
                    help='probability that a scan is dropped (never the first; its ground '
                    'truth goes too) (default: 0)')
-    p.add_argument('--duration', type=_number(float, 0.0, 1e6, True), default=60.0,
+    p.add_argument('--duration', type=number_in(float, 0.0, 1e6, True), default=60.0,
                    metavar='S', help='simulated time [s] (default: 60)')
     p.add_argument('--sensor', default=DEFAULT_SENSOR, choices=sensor_names(),
                    help=_sensor_help())
@@ -88,37 +72,37 @@ def build_parser() -> argparse.ArgumentParser:
                    help='which beam the scan stamp belongs to: first (the ROS drivers) or '
                    'last; the ground truth is the pose at the stamp; no effect with the '
                    'instantaneous ideal sensor (default: first)')
-    p.add_argument('--beams', type=_number(int, 2, 100000, what='integer'), default=None,
+    p.add_argument('--beams', type=number_in(int, 2, 100000, what='integer'), default=None,
                    metavar='N', help='beams per scan' + preset.format(defaults.beams))
-    p.add_argument('--fov', type=_number(float, 0.0, 360.0, True), default=None,
+    p.add_argument('--fov', type=number_in(float, 0.0, 360.0, True), default=None,
                    metavar='DEG', help='field of view [deg]' + preset.format(360))
-    p.add_argument('--max-range', type=_number(float, 0.0, 1e4, True), default=None,
+    p.add_argument('--max-range', type=number_in(float, 0.0, 1e4, True), default=None,
                    metavar='M', help='max range [m]' + preset.format(f'{defaults.max_range:g}'))
-    p.add_argument('--min-range', type=_number(float, 0.0, 1e4), default=None,
+    p.add_argument('--min-range', type=number_in(float, 0.0, 1e4), default=None,
                    metavar='M', help='min range [m]' + preset.format(defaults.min_range))
-    p.add_argument('--noise', type=_number(float, 0.0, 10.0), default=None,
+    p.add_argument('--noise', type=number_in(float, 0.0, 10.0), default=None,
                    metavar='SIGMA', help='range noise std. dev. [m]'
                    + preset.format(defaults.noise_sigma))
-    p.add_argument('--dropout', type=_number(float, 0.0, 1.0), default=None,
+    p.add_argument('--dropout', type=number_in(float, 0.0, 1.0), default=None,
                    metavar='P', help='probability of a NaN reading'
                    + preset.format(f'{defaults.dropout:g}'))
-    p.add_argument('--rate', type=_number(float, 0.0, 1000.0, True), default=None,
+    p.add_argument('--rate', type=number_in(float, 0.0, 1000.0, True), default=None,
                    metavar='HZ', help='scan rate [Hz]' + preset.format(f'{defaults.rate:g}'))
-    p.add_argument('--odom-rate', type=_number(float, 0.0, 10000.0, True),
+    p.add_argument('--odom-rate', type=number_in(float, 0.0, 10000.0, True),
                    default=ODOMETRY_RATE, metavar='HZ', help='wheel odometry rate [Hz] '
                    '(default: 50)')
-    p.add_argument('--odom-noise', type=_number(float, 0.0, 100.0), default=1.0,
+    p.add_argument('--odom-noise', type=number_in(float, 0.0, 100.0), default=1.0,
                    metavar='FACTOR', help='scale of the wheel odometry errors; 0 gives '
                    'perfect odometry (default: 1)')
-    p.add_argument('--seed', type=_number(int, 0, 2 ** 63 - 1, what='integer'), default=0,
+    p.add_argument('--seed', type=number_in(int, 0, 2 ** 63 - 1, what='integer'), default=0,
                    metavar='N', help='random seed (default: 0)')
     p.add_argument('--storage', choices=list(STORAGES), default='sqlite3',
                    help='bag storage (default: sqlite3)')
-    p.add_argument('--laser-x', type=_number(float, -10.0, 10.0), default=0.0, metavar='M',
+    p.add_argument('--laser-x', type=number_in(float, -10.0, 10.0), default=0.0, metavar='M',
                    help='laser position on the base, x [m]')
-    p.add_argument('--laser-y', type=_number(float, -10.0, 10.0), default=0.0, metavar='M',
+    p.add_argument('--laser-y', type=number_in(float, -10.0, 10.0), default=0.0, metavar='M',
                    help='laser position on the base, y [m]')
-    p.add_argument('--laser-yaw', type=_number(float, -math.pi, math.pi), default=0.0,
+    p.add_argument('--laser-yaw', type=number_in(float, -math.pi, math.pi), default=0.0,
                    metavar='RAD', help='laser yaw on the base [rad]')
     p.add_argument('--laser-upside-down', action='store_true',
                    help='laser mounted upside down (mirrored scan)')

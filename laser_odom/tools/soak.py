@@ -26,7 +26,7 @@ from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.scan import LaserScan
 from laser_odom.core.simulation import (
     EPOCH_NS, get_world, LaserModel, render_scan, world_names)
-from laser_odom.tools.simulate import _number
+from laser_odom.tools.arguments import number_in
 
 PROG = 'laser_odom_soak'
 
@@ -84,7 +84,7 @@ def _scan_count(text: str) -> int:
 
 def _integer(low: int, high: int) -> Callable[[str], float]:
     """Return an argparse type for an integer in [low, high]."""
-    return _number(int, low, high, what='integer')
+    return number_in(int, low, high, what='integer')
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='beams per scan (default: 360)')
     p.add_argument('--report-every', type=_integer(1, 10 ** 12), default=10_000, metavar='N',
                    help='print a memory line every N scans (default: 10000)')
-    p.add_argument('--limit-mib', type=_number(float, 0.0, 1e6, True), default=20.0,
+    p.add_argument('--limit-mib', type=number_in(float, 0.0, 1e6, True), default=20.0,
                    metavar='MIB', help='allowed growth of resident memory after the warm-up '
                    '[MiB]; more exits 1 (default: 20)')
     return p

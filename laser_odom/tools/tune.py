@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 from functools import partial
 import math
-import os
 from pathlib import Path
 import shutil
 import sys
@@ -32,12 +31,14 @@ from laser_odom.core.tuning.objective import OBJECTIVES, REFERENCE_FREE
 from laser_odom.core.tuning.space import (
     BASE_PRIORS, matcher_space, read_space_file, SpaceError)
 from laser_odom.core.tuning.study import (
-    open_storage, plot_data, run_studies, StorageError, StudySummary, summarize,
-    table_lines, TuneJob)
+    open_storage, plot_data, run_studies, StorageError, StudyMismatchError, StudySummary,
+    summarize, table_lines, TuneJob)
 from laser_odom.io.bag_dataset import BAG_GROUND_TRUTH, check_overlap, read_bag
 from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.io.text_output import write_text_atomically
 from laser_odom.ros.default_params import yaml_value
+from laser_odom.tools.arguments import number_in
 from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import DEFAULT_MIN_COVERAGE
 
@@ -68,9 +69,10 @@ def build_parser() -> argparse.ArgumentParser:
                    '(forced when a bag has no reference)')
     p.add_argument('--odom-agreement', type=float, default=0.0, metavar='WEIGHT',
                    help='reference-free: add WEIGHT x disagreement with wheel odometry')
-    p.add_argument('--min-coverage', type=float, default=DEFAULT_MIN_COVERAGE,
-                   metavar='FRACTION', help='least fraction of the scans of a bag that the '
-                   f'reference must pair with (default {DEFAULT_MIN_COVERAGE:g})')
+    p.add_argument('--min-coverage', type=number_in(float, 0.0, 1.0, what='number'),
+                   default=DEFAULT_MIN_COVERAGE, metavar='FRACTION',
+                   help='least fraction of the scans of a bag that the reference must pair '
+                   f'with (default {DEFAULT_MIN_COVERAGE:g})')
     p.add_argument('--params-file', type=Path, help='starting params file (trial 0)')
     p.add_argument('--space', type=Path, help='YAML of ranges: name: [low, high] or '
                    '[choice, ...]')
@@ -83,15 +85,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--jobs', type=int, default=1, help='parallel processes (default 1)')
     p.add_argument('--seed', type=int, help='sampler seed')
     p.add_argument('--scan-topic', help='LaserScan topic (default: the only one)')
-    p.add_argument('--odom-topic', default='/odom', help='wheel odometry topic (default '
-                   '/odom): the odom prior and --odom-agreement')
+    p.add_argument('--odom-topic', default=None, help='wheel odometry topic, which every '
+                   'bag must have (default: /odom where a bag has it): the odom prior and '
+                   '--odom-agreement')
     p.add_argument('--plot', type=Path, help='write a PNG of the studies and best runs')
     p.add_argument('--quiet', action='store_true', help='no progress and no warnings')
     return p
 
 
 def load_bag(path: str, reference: str | None, scan_topic: str | None,
-             odom_topic: str) -> RecordedBag:
+             odom_topic: str | None) -> RecordedBag:
     """Read one bag (in bag order, as the replay) with the tools' one bag reader."""
     try:
         return read_bag(path, reference, scan_topic, odom_topic, purpose='tuning')
@@ -108,7 +111,7 @@ def check_reference_overlap(bag: RecordedBag, min_coverage: float) -> None:
 
 
 def load_bags(paths: Sequence[str], references: Sequence[str | None],
-              scan_topic: str | None, odom_topic: str) -> list[RecordedBag]:
+              scan_topic: str | None, odom_topic: str | None) -> list[RecordedBag]:
     """Read every bag (also what each ``--jobs`` process calls)."""
     return [load_bag(p, r, scan_topic, odom_topic) for p, r in zip(paths, references)]
 
@@ -147,8 +150,8 @@ def _objective_name(args: argparse.Namespace, bags: list[RecordedBag], warn: Any
                             '--reference-free')
         lacking = [b.name for b in bags if b.odometry is None]
         if lacking:
-            raise TuneError(f'--odom-agreement: {lacking[0]} has no {args.odom_topic} '
-                            'Odometry topic')
+            raise TuneError(f'--odom-agreement: {lacking[0]} has no /odom Odometry topic '
+                            '(name another with --odom-topic)')
     if objective != REFERENCE_FREE:
         for bag in bags:
             check_reference_overlap(bag, args.min_coverage)
@@ -181,16 +184,14 @@ def tuned_yaml(values: dict[str, Any], summary: StudySummary, header: list[str])
 
 
 def write_output(path: Path, text: str) -> None:
-    """Write the params file atomically and check that the node reads it as written."""
-    tmp = path.with_name(f'.{path.name}.{os.getpid()}.partial')
-    try:
-        tmp.write_text(text)
-        checked = read_params_files([tmp])
-        if checked.warnings:
-            raise TuneError(f'internal error: {path} would warn: {checked.warnings[0]}')
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    """Check that the node reads the params file as written, then write it atomically."""
+    with tempfile.TemporaryDirectory(prefix='laser_odom_tune_check.') as scratch:
+        check = Path(scratch) / path.name
+        check.write_text(text)
+        checked = read_params_files([check])
+    if checked.warnings:
+        raise TuneError(f'internal error: {path} would warn: {checked.warnings[0]}')
+    write_text_atomically(path, text)
 
 
 def plot(path: Path, job: TuneJob, storage: Any, bags: list[RecordedBag],
@@ -242,18 +243,22 @@ def tune(args: argparse.Namespace) -> int:
     url = args.storage or (f'sqlite:///{temporary}/study.db' if temporary else None)
     try:
         storage = open_storage(url)
+        definition = {'objective': objective, 'odom_weight': args.odom_agreement or 0.0,
+                      'bags': [f'{Path(b.name).name} ({len(b.scans)} scans)' for b in bags],
+                      'start': {k: base[k] for k in sorted(base)}}
         job = TuneJob(loader, spaces, base, objective, args.odom_agreement, args.study_name,
-                      url, args.seed, sys.stderr.isatty() and not args.quiet)
+                      url, args.seed, sys.stderr.isatty() and not args.quiet, definition)
         existing = run_studies(job, storage, args.trials, args.jobs)
         summaries = summarize(job, storage, existing)
-        print('\n'.join(table_lines(summaries, objective)))
+        start = 'default' if args.params_file is None else 'start'
+        print('\n'.join(table_lines(summaries, objective, start)))
         winner = min(summaries, key=lambda s: s.best if math.isfinite(s.best) else math.inf)
         header = [f'{PROG}: best of {", ".join(matchers)} on {", ".join(args.bags)}',
                   f'score {objective.replace("_", "-")}, lower is better; study '
                   f'{args.study_name}-{winner.matcher}, {winner.total} trials']
         write_output(args.output, tuned_yaml(winner.best_values or {'matcher': winner.matcher},
                                              winner, header))
-        print(f'best: {winner.matcher} {winner.best:.5g} (defaults {winner.default:.5g}); '
+        print(f'best: {winner.matcher} {winner.best:.5g} ({start} {winner.default:.5g}); '
               f'wrote {args.output}')
         if args.plot is not None:
             plot(args.plot, job, storage, bags, summaries)
@@ -273,7 +278,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings_silenced(args.quiet):
             return tune(args)
-    except (TuneError, SpaceError, StorageError, BagError, ParamsFileError) as err:
+    except (TuneError, SpaceError, StorageError, StudyMismatchError, BagError,
+            ParamsFileError) as err:
         print(f'{PROG}: error: {err}', file=sys.stderr)
         return 2
     except RuntimeError as err:  # a --jobs process died

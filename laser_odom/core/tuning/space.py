@@ -180,9 +180,12 @@ def _override(dimension: Dimension, info: ParamInfo, values: list[Any]) -> Dimen
         allowed = dimension.choices if name != 'prior' else tuple(info.choices or ())
         values = [yaml_word(v, info) for v in values]  # an unquoted off is 'off'
         bad = [v for v in values if v not in allowed]
-        if not values or bad:
-            raise SpaceError(f'--space {name}: {bad[0] if bad else "no choices"!r} is not '
-                             f'one of {", ".join(str(c) for c in allowed)}')
+        if not values:
+            raise SpaceError(f'--space {name}: empty choice list; give at least one of '
+                             f'{", ".join(str(c) for c in allowed)}')
+        if bad:
+            raise SpaceError(f'--space {name}: {bad[0]!r} is not one of '
+                             f'{", ".join(str(c) for c in allowed)}')
         return replace(dimension, choices=tuple(dict.fromkeys(values)))
     if len(values) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                    for v in values):

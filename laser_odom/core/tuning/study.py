@@ -12,7 +12,7 @@ trials to it at once. Optuna is imported only here and only when a study runs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 import multiprocessing
 import os
@@ -39,6 +39,10 @@ class StorageError(ValueError):
     """The storage URL cannot be opened; ``str(error)`` is one line."""
 
 
+class StudyMismatchError(ValueError):
+    """A resumed study was scored on other bags or by another objective (one line)."""
+
+
 @dataclass
 class TuneJob:
     """Everything a worker process needs: picklable, the bags as a loader to call."""
@@ -54,6 +58,9 @@ class TuneJob:
     storage_url: str | None
     seed: int | None
     progress: bool
+    definition: dict[str, Any] = field(default_factory=dict)
+    """What a score means - objective, bags, starting values (JSON types): a study
+    resumed with another definition would rank incomparable scores."""
 
 
 @dataclass
@@ -102,12 +109,15 @@ def open_storage(url: str | None) -> Any:
             return optuna.storages.RDBStorage(url, engine_kwargs=kwargs)
         except Exception as err:  # noqa: B902 - drivers, DNS, refusals, bad URLs alike
             error = err
-            if isinstance(err, ImportError):  # e.g. PostgreSQL without psycopg2
+            if isinstance(err, ImportError):  # e.g. PostgreSQL without psycopg
                 break
             time.sleep(0.25 * (attempt + 1))
     reason = (str(error).strip().splitlines() or [type(error).__name__])[0]
     if isinstance(error, ImportError):
-        reason = f'no database driver for {url.partition(":")[0]} installed ({reason})'
+        dialect = url.partition(':')[0]
+        hint = ('; pip install "psycopg[binary]" (or psycopg2-binary with a '
+                'postgresql+psycopg2:// URL)' if dialect == 'postgresql' else '')
+        reason = f'no database driver for {dialect} installed{hint}'
     raise StorageError(f'cannot open storage {_hide_password(url)}: {reason[:200]}')
 
 
@@ -126,13 +136,33 @@ def prepare_studies(job: TuneJob, storage: Any) -> dict[str, int]:
     import optuna
     existing = {}
     for matcher, dimensions in job.spaces.items():
-        study = optuna.create_study(storage=storage, study_name=study_name(job, matcher),
-                                    direction='minimize', load_if_exists=True)
+        name = study_name(job, matcher)
+        study = optuna.create_study(storage=storage, study_name=name, direction='minimize',
+                                    load_if_exists=True)
         existing[matcher] = len(study.trials)
+        recorded = study.user_attrs.get('definition')
+        if recorded is None:
+            study.set_user_attr('definition', job.definition)
+        elif recorded != job.definition:
+            raise StudyMismatchError(
+                f'study {name} was scored {describe_definition(recorded)}, this run would '
+                f'score {describe_definition(job.definition)}: resume it with the same bags, '
+                'objective and --params-file, or give another --study-name')
         if not study.trials:  # skip_if_exists: two processes that start a study at once
             study.enqueue_trial(start_values(dimensions), user_attrs={'default': True},
                                 skip_if_exists=True)
     return existing
+
+
+def describe_definition(definition: dict[str, Any]) -> str:
+    """Return a study definition in a few words for a one-line message."""
+    words = [f'by {definition.get("objective")}']
+    if definition.get('odom_weight'):
+        words.append(f'+ {definition["odom_weight"]:g} x odometry disagreement')
+    words.append(f'on {", ".join(definition.get("bags", []))}')
+    if definition.get('start'):
+        words.append(f'from {len(definition["start"])} --params-file values')
+    return ' '.join(words)
 
 
 def _objective(job: TuneJob, matcher: str, bags: list[RecordedBag]) -> Callable[[Any], float]:
@@ -261,10 +291,14 @@ def suggest_fixed(dimensions: Sequence[Dimension], trial: Any) -> dict[str, Any]
     return {d.name: trial.params.get(d.name, d.start) for d in dimensions}
 
 
-def table_lines(summaries: Sequence[StudySummary], objective: str) -> list[str]:
-    """Return the table of default vs best score per matcher, trials and wall time."""
+def table_lines(summaries: Sequence[StudySummary], objective: str,
+                start: str = 'default') -> list[str]:
+    """Return the table of default vs best score per matcher, trials and wall time.
+
+    ``start`` names trial 0's column: ``default``, or ``start`` for a ``--params-file``.
+    """
     lines = [f'score: {objective.replace("_", "-")} (lower is better)',
-             f'{"matcher":8} {"default":>10} {"best":>10} {"trials":>7} {"pruned":>6} '
+             f'{"matcher":8} {start:>10} {"best":>10} {"trials":>7} {"pruned":>6} '
              f'{"failed":>6} {"total":>6} {"wall [s]":>9}']
     for s in summaries:
         lines.append(f'{s.matcher:8} {s.default:10.5g} {s.best:10.5g} {s.trials:7d} '
