@@ -17,7 +17,7 @@ setup(
         ('share/' + PACKAGE_NAME + '/launch', glob('launch/*.launch.py')),
         ('share/' + PACKAGE_NAME + '/rviz', glob('rviz/*.rviz')),
     ],
-    install_requires=['setuptools', 'numpy', 'scipy', 'rosbags'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'rosbags'],
     python_requires='>=3.10',
     zip_safe=True,
     maintainer='laser_odom maintainers',

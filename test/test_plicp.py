@@ -116,7 +116,7 @@ def test_pairs_take_the_closer_beam_neighbour_and_its_line():
     segments = reference_segments(scan, 3, 0.5)
     # Nearest reference point is #1 for both; the first is nearer #0, the second #2.
     queries = np.array([[1.9, -0.03], [2.05, 0.03]])
-    index, segment_id, line = pair_with_segments(segments, scan.tree, queries, 0.5)
+    index, segment_id, line = pair_with_segments(segments, scan.bearing_index, queries, 0.5)
     assert index.tolist() == [0, 1]
     assert segment_id.tolist() == [2, 3]  # 2 * j1 + (1 if the next neighbour)
     assert np.allclose(np.abs(line[0, :2]), [1.0, 0.0])  # the wall x = 2

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
+from laser_odom.core.nearest import BearingIndex
 
 MAX_DENSE_POINTS = 20000
 """Upper bound on the points a densified surface adds (bounds time on huge scans)."""
@@ -105,6 +106,11 @@ class ScanPoints:
     def tree(self) -> cKDTree:
         """KD-tree over the points, built on first use and then reused."""
         return cKDTree(self.points)
+
+    @cached_property
+    def bearing_index(self) -> BearingIndex:
+        """The points sorted by bearing, for exact gated nearest-neighbour search."""
+        return BearingIndex(self.points)
 
 
 def beam_angles(scan: LaserScan, count: int | None = None) -> np.ndarray:

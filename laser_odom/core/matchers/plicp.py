@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
@@ -31,10 +30,10 @@ from laser_odom.core.matchers.information import (
     covariance_from_information, information_from_jacobians, point_to_line_jacobians,
     residual_variance)
 from laser_odom.core.matchers.plicp_segments import (
-    pair_with_segments, Pairs, reference_segments, ReferenceSegments)
-from laser_odom.core.matchers.plicp_solver import solve_design
+    pair_and_trim, pair_with_segments, Pairs, reference_segments, ReferenceSegments)
+from laser_odom.core.matchers.plicp_solver import solve_normal_equations
 from laser_odom.core.matchers.registry import register
-from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.nearest import BearingIndex
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
@@ -123,7 +122,7 @@ class PlicpMatcher(ScanMatcher):
             return MatchResult.failure(guess, reason='too few points')
         segments = reference_segments(reference, cfg.max_beam_gap, cfg.max_segment_length,
                                       cfg.information_window)
-        run = self._run(segments, reference.tree, current, guess)
+        run = self._run(segments, reference.bearing_index, current, guess)
         iterations = run.iterations if run is not None else 0
         if cfg.restart_residual > 0.0 and (run is None or not run.converged
                                            or run.rms > cfg.restart_residual):
@@ -160,7 +159,7 @@ class PlicpMatcher(ScanMatcher):
         iterations = 0
         for rotation in rotation_candidates(reference, current, guess[2],
                                             cfg.restart_max_rotation, cfg.restart_candidates):
-            run = self._run(segments, reference.tree, current,
+            run = self._run(segments, reference.bearing_index, current,
                             np.array([guess[0], guess[1], rotation]))
             if run is None:
                 continue
@@ -172,7 +171,7 @@ class PlicpMatcher(ScanMatcher):
                 best = score
         return (None if best is None else best[2]), iterations
 
-    def _run(self, segments: ReferenceSegments, tree: cKDTree, current: ScanPoints,
+    def _run(self, segments: ReferenceSegments, index: BearingIndex, current: ScanPoints,
              guess: se2.Pose) -> _Run | None:
         """Iterate from ``guess`` until the step is small, a pairing repeats, or the cap."""
         cfg = self.config
@@ -182,11 +181,10 @@ class PlicpMatcher(ScanMatcher):
         converged = False
         iterations = 0
         for iterations in range(1, cfg.max_iterations + 1):
-            moved = se2.transform_points(estimate, current.points)
-            pairs = self._pairs(segments, tree, moved, coarse)
+            pairs = self._pairs(segments, index, current.points, estimate, coarse)
             if pairs is None:
                 return None
-            delta = solve_design(pairs.design, pairs.offset)
+            delta = solve_normal_equations(pairs.normal_matrix, pairs.normal_vector)
             updated = se2.compose(delta, estimate)
             step = se2.relative(estimate, updated)
             estimate = updated
@@ -210,36 +208,28 @@ class PlicpMatcher(ScanMatcher):
                    current: ScanPoints, run: _Run) -> float:
         """Fraction of current points within ``restart_residual`` of their reference line."""
         moved = se2.transform_points(run.estimate, current.points)
-        index, _, line = pair_with_segments(segments, reference.tree, moved,
+        index, _, line = pair_with_segments(segments, reference.bearing_index, moved,
                                             self.config.max_correspondence_distance)
         pts = moved[index]
         residuals = line[:, 0] * pts[:, 0] + line[:, 1] * pts[:, 1] - line[:, 2]
         return float(np.count_nonzero(np.abs(residuals) < self.config.restart_residual)
                      / len(current))
 
-    def _pairs(self, segments: ReferenceSegments, tree: cKDTree, moved: np.ndarray,
-               coarse: bool) -> Pairs | None:
-        """Return the gated and trimmed point-to-line pairs of the moved current scan."""
+    def _pairs(self, segments: ReferenceSegments, index: BearingIndex, points: np.ndarray,
+               estimate: se2.Pose, coarse: bool) -> Pairs | None:
+        """Return the gated and trimmed point-to-line pairs of the current scan's points."""
         cfg = self.config
         gate = cfg.coarse_correspondence_distance if coarse else cfg.max_correspondence_distance
-        index, segment_id, line = pair_with_segments(segments, tree, moved, gate)
-        if index.shape[0] < cfg.min_correspondences:
+        keep = cfg.coarse_keep_fraction if coarse else -1.0  # negative: adaptive trimming
+        kept, moved, line, segment_id, normal_matrix, normal_vector, signature, paired = \
+            pair_and_trim(segments.table, index.sorted_points, index.bearings,
+                          index.directions, index.order,
+                          points, np.asarray(estimate, dtype=float), gate, keep,
+                          cfg.min_keep_fraction, cfg.max_keep_fraction, cfg.trim_sigma)
+        if paired < cfg.min_correspondences:
             return None
-        pts = moved[index]
-        nx, ny = line[:, 0], line[:, 1]
-        n_dot_p = nx * pts[:, 0] + ny * pts[:, 1]
-        residuals = n_dot_p - line[:, 2]
-        if coarse:
-            keep = cfg.coarse_keep_fraction
-        else:
-            keep = adaptive_keep_fraction(residuals, cfg.min_keep_fraction,
-                                          cfg.max_keep_fraction, cfg.trim_sigma)
-        mask = trimmed_mask(residuals, keep)
-        design = np.column_stack((nx, ny, n_dot_p, ny * pts[:, 0] - nx * pts[:, 1]))[mask]
-        segment_id = segment_id[mask]
-        signature = hash((index[mask].tobytes(), segment_id.tobytes()))
-        return Pairs(pts[mask], line[mask, :2], segment_id >> 1, design, line[mask, 2],
-                     signature)
+        return Pairs(moved, line[:, :2], segment_id >> 1, normal_matrix, normal_vector,
+                     line[:, 2], int(signature))
 
 
 DIRECTION_BINS = 180

@@ -5,16 +5,21 @@ point is paired with the segment between its nearest reference point ``j1`` and 
 closer of ``j1``'s neighbours in the scan's beam order, and its error is the distance
 to the line through that segment. Everything per reference scan is computed once and
 cached in ``ScanPoints.cache`` (a scan is the current scan once and the reference
-once), so an iteration costs one KD-tree query and one table lookup.
+once), so an iteration costs one nearest-neighbour search in the reference's bearing
+index and one table lookup, compiled into one kernel with the trimming and the normal
+equations (:func:`pair_and_trim`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 
+import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
+from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.nearest import BearingIndex, nearest_by_bearing
 from laser_odom.core.scan import ScanPoints
 
 
@@ -131,15 +136,18 @@ def surface_normals(points: np.ndarray, length: np.ndarray, segment_ok: np.ndarr
 class Pairs:
     """Trimmed point-to-line pairs of one iteration.
 
-    ``design`` rows are ``a_i = (n_x, n_y, n.p, n x p)`` and ``offset`` is ``n . q``
-    (the cost of :func:`solve_design`); ``nearest`` is each pair's nearest reference
-    point ``j1``; ``signature`` identifies the pairing.
+    ``points`` are the paired current points moved by the estimate, ``normals`` and
+    ``offset`` their lines ``n . x = n . q``; ``nearest`` is each pair's nearest
+    reference point ``j1``; ``normal_matrix`` and ``normal_vector`` are ``M`` and ``m``
+    of the closed-form step (:func:`.plicp_solver.solve_normal_equations`);
+    ``signature`` identifies the pairing.
     """
 
     points: np.ndarray
     normals: np.ndarray
     nearest: np.ndarray
-    design: np.ndarray
+    normal_matrix: np.ndarray
+    normal_vector: np.ndarray
     offset: np.ndarray
     signature: int
 
@@ -148,20 +156,95 @@ class Pairs:
         return int(self.points.shape[0])
 
 
-def pair_with_segments(segments: ReferenceSegments, tree: cKDTree, moved: np.ndarray,
+def pair_with_segments(segments: ReferenceSegments, index: BearingIndex, moved: np.ndarray,
                        max_distance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pair moved current points with reference segments (Censi 2008, Sec. III).
 
-    One bounded KD-tree query finds each point's nearest reference point ``j1``; the
-    segment goes to whichever of ``j1 - 1`` / ``j1 + 1`` is closer to the point,
-    among those that form a segment with ``j1``. Returns the indices of the paired
-    current points, their segment ids (``2 j1 + side``) and their table rows.
+    Each point's nearest reference point ``j1`` (within ``max_distance``) is found in
+    the reference's bearing index; the segment goes to whichever of ``j1 - 1`` /
+    ``j1 + 1`` is closer to the point, among those that form a segment with ``j1``.
+    Returns the indices of the paired current points, their segment ids
+    (``2 j1 + side``) and their lines ``(n_x, n_y, n . q)``.
     """
-    distance, nearest = tree.query(moved, k=1, distance_upper_bound=max_distance)
-    rows = segments.table[nearest]
-    index = np.flatnonzero(rows[:, 9])
-    rows = rows[index]
-    pts = moved[index]
-    use_next = pts[:, 0] * rows[:, 0] + pts[:, 1] * rows[:, 1] < rows[:, 2]
-    segment_id = 2 * nearest[index] + use_next
-    return index, segment_id, np.where(use_next[:, None], rows[:, 6:9], rows[:, 3:6])
+    paired, segment_id, line = _pair(segments.table, index.sorted_points, index.bearings,
+                                     index.directions, index.order,
+                                     np.ascontiguousarray(moved, dtype=float),
+                                     float(max_distance))
+    return paired, segment_id, line
+
+
+@numba.njit(cache=True, nogil=True)
+def _pair(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
+          directions: np.ndarray, order: np.ndarray, moved: np.ndarray, max_distance: float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Compiled kernel of :func:`pair_with_segments`."""
+    _, nearest = nearest_by_bearing(sorted_points, bearings, directions, order, moved,
+                                    max_distance)
+    count = moved.shape[0]
+    paired = np.empty(count, dtype=np.int64)
+    segment_id = np.empty(count, dtype=np.int64)
+    line = np.empty((count, 3))
+    k = 0
+    for i in range(count):
+        row = table[nearest[i]]
+        if row[9] == 0.0:
+            continue
+        use_next = moved[i, 0] * row[0] + moved[i, 1] * row[1] < row[2]
+        first = 6 if use_next else 3
+        paired[k] = i
+        segment_id[k] = 2 * nearest[i] + (1 if use_next else 0)
+        line[k, 0], line[k, 1], line[k, 2] = row[first], row[first + 1], row[first + 2]
+        k += 1
+    return paired[:k], segment_id[:k], line[:k]
+
+
+@numba.njit(cache=True, nogil=True)
+def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
+                  directions: np.ndarray, order: np.ndarray, points: np.ndarray,
+                  estimate: np.ndarray, max_distance: float, keep_fraction: float,
+                  min_keep_fraction: float, max_keep_fraction: float,
+                  trim_sigma: float) -> tuple:
+    """One PL-ICP pairing: move, pair, trim, and sum the normal equations (compiled).
+
+    ``points`` are moved by ``estimate`` and paired (:func:`pair_with_segments`);
+    the pairs with the smallest point-to-line residuals are kept - a fixed
+    ``keep_fraction``, or when it is negative the adaptive fraction
+    (:func:`adaptive_keep_fraction`). Returns the kept current-point indices, their
+    moved points, lines ``(n_x, n_y, n . q)`` and segment ids, the normal equations
+    ``M = sum a a^T``, ``m = sum (n . q) a`` of the closed-form step
+    (``a = (n_x, n_y, n . p, n x p)``, :func:`.plicp_solver.solve_normal_equations`),
+    and a hash of the pairing (equal pairings give equal steps: a repeat is a cycle).
+    """
+    c, s = math.cos(estimate[2]), math.sin(estimate[2])
+    moved = np.empty_like(points)
+    moved[:, 0] = c * points[:, 0] - s * points[:, 1] + estimate[0]
+    moved[:, 1] = s * points[:, 0] + c * points[:, 1] + estimate[1]
+    paired, segment_id, line = _pair(table, sorted_points, bearings, directions, order,
+                                     moved, max_distance)
+    count = paired.shape[0]
+    residuals = np.empty(count)
+    for k in range(count):
+        p = moved[paired[k]]
+        residuals[k] = line[k, 0] * p[0] + line[k, 1] * p[1] - line[k, 2]
+    if keep_fraction < 0.0:
+        keep_fraction = adaptive_keep_fraction(residuals, min_keep_fraction,
+                                               max_keep_fraction, trim_sigma)
+    mask = trimmed_mask(residuals, keep_fraction)
+    kept = np.flatnonzero(mask)
+    big_m = np.zeros((4, 4))
+    small_m = np.zeros(4)
+    row = np.empty(4)
+    signature = np.uint64(14695981039346656037)
+    for k in kept:
+        p = moved[paired[k]]
+        nx, ny = line[k, 0], line[k, 1]
+        row[0], row[1] = nx, ny
+        row[2], row[3] = nx * p[0] + ny * p[1], ny * p[0] - nx * p[1]
+        for a in range(4):
+            small_m[a] += row[a] * line[k, 2]
+            for b in range(4):
+                big_m[a, b] += row[a] * row[b]
+        for value in (paired[k], segment_id[k]):  # FNV-1a over the pairing
+            signature = (signature ^ np.uint64(value)) * np.uint64(1099511628211)
+    return (paired[kept], moved[paired[kept]], line[kept], segment_id[kept], big_m, small_m,
+            signature, count)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from laser_odom.core import se2
@@ -39,7 +40,18 @@ def solve_design(design: np.ndarray, offset: np.ndarray,
                  weights: np.ndarray | None = None) -> se2.Pose:
     """Minimise ``sum w_i (a_i^T x - b_i)^2`` over ``x = (t, cos, sin)`` on the circle.
 
-    The cost is ``x^T M x - 2 m^T x + c`` with ``M = sum w a a^T``, ``m = sum w b a``.
+    The cost is ``x^T M x - 2 m^T x + c`` with ``M = sum w a a^T``, ``m = sum w b a``;
+    :func:`solve_normal_equations` finds its constrained minimum.
+    """
+    weighted = design if weights is None else design * weights[:, None]
+    return solve_normal_equations(np.ascontiguousarray(weighted.T @ design),
+                                  np.ascontiguousarray(weighted.T @ offset))
+
+
+@numba.njit(cache=True, nogil=True)
+def solve_normal_equations(big_m: np.ndarray, small_m: np.ndarray) -> np.ndarray:
+    """Minimise ``x^T M x - 2 m^T x`` over ``x = (t_x, t_y, cos, sin)`` on the circle.
+
     Stationarity of ``x^T M x - 2 m^T x + lambda (x3^2 + x4^2 - 1)`` gives
     ``(M + lambda W) x = m`` (``W = diag(0, 0, 1, 1)``; Censi 2008, appendix).
     Eliminating ``t`` leaves ``(S + lambda I) r = h`` for ``r = (cos, sin)`` with the
@@ -47,18 +59,12 @@ def solve_design(design: np.ndarray, offset: np.ndarray,
     becomes ``|adj(S + lambda I) h|^2 = det(S + lambda I)^2``, a quartic in lambda.
     Its largest real root makes ``S + lambda I`` positive semidefinite, which is the
     global minimum on the circle; the other real roots are also scored, for safety.
+    Returns the pose ``[t_x, t_y, theta]``.
     """
-    if weights is None:
-        big_m = design.T @ design
-        small_m = design.T @ offset
-    else:
-        weighted = design * weights[:, None]
-        big_m = weighted.T @ design
-        small_m = weighted.T @ offset
-    # 2x2 algebra in Python floats: numpy's per-call overhead dominates at this size.
-    (a11, a12, b11, b12), (_, a22, b21, b22), (_, _, d11, d12), (_, _, _, d22) = \
-        big_m.tolist()
-    m1, m2, m3, m4 = small_m.tolist()
+    a11, a12, b11, b12 = big_m[0, 0], big_m[0, 1], big_m[0, 2], big_m[0, 3]
+    a22, b21, b22 = big_m[1, 1], big_m[1, 2], big_m[1, 3]
+    d11, d12, d22 = big_m[2, 2], big_m[2, 3], big_m[3, 3]
+    m1, m2, m3, m4 = small_m[0], small_m[1], small_m[2], small_m[3]
     ridge = TRANSLATION_RIDGE * (a11 + a22) + 1e-300
     a11, a22 = a11 + ridge, a22 + ridge
     det_a = a11 * a22 - a12 * a12
@@ -78,18 +84,27 @@ def solve_design(design: np.ndarray, offset: np.ndarray,
     # adj(S) h, with adj(S + lambda I) = adj(S) + lambda I for a 2x2 matrix.
     g1, g2 = s22 * h1 - s12 * h2, s11 * h2 - s12 * h1
     # Monic quartic lambda^4 + c1 lambda^3 + c2 lambda^2 + c3 lambda + c4: its roots are
-    # the eigenvalues of the companion matrix (what numpy.roots does, minus overhead).
-    c1 = 2.0 * trace
-    c2 = trace * trace + 2.0 * det - (h1 * h1 + h2 * h2)
-    c3 = 2.0 * trace * det - 2.0 * (h1 * g1 + h2 * g2)
-    c4 = det * det - (g1 * g1 + g2 * g2)
-    roots = np.linalg.eigvals(np.array([[-c1, -c2, -c3, -c4], [1.0, 0.0, 0.0, 0.0],
-                                        [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]))
-    real = roots.real[np.abs(roots.imag) <= 1e-6 * np.maximum(1.0, np.abs(roots.real))]
-    if real.size == 0:
-        real = roots.real[[int(np.argmin(np.abs(roots.imag)))]]
-    best, best_cost = (1.0, 0.0), math.inf
-    for lam in sorted(real.tolist(), reverse=True):
+    # the eigenvalues of the companion matrix (as numpy.roots finds them).
+    companion = np.zeros((4, 4), dtype=np.complex128)
+    companion[0, 0] = -2.0 * trace
+    companion[0, 1] = -(trace * trace + 2.0 * det - (h1 * h1 + h2 * h2))
+    companion[0, 2] = -(2.0 * trace * det - 2.0 * (h1 * g1 + h2 * g2))
+    companion[0, 3] = -(det * det - (g1 * g1 + g2 * g2))
+    companion[1, 0] = companion[2, 1] = companion[3, 2] = 1.0
+    roots = np.linalg.eigvals(companion)
+    real = np.empty(4)
+    count = 0
+    for root in roots:
+        if abs(root.imag) <= 1e-6 * max(1.0, abs(root.real)):
+            real[count] = root.real
+            count += 1
+    if count == 0:
+        real[0] = roots[np.argmin(np.abs(roots.imag))].real
+        count = 1
+    real = np.sort(real[:count])
+    best_c, best_s, best_cost = 1.0, 0.0, np.inf
+    for order in range(count - 1, -1, -1):
+        lam = real[order]
         # (S + lambda I) r = h by Cramer's rule, then projected onto the unit circle.
         e11, e22 = s11 + lam, s22 + lam
         det_e = e11 * e22 - s12 * s12
@@ -102,7 +117,6 @@ def solve_design(design: np.ndarray, offset: np.ndarray,
         c, sn = c / norm, sn / norm
         cost = s11 * c * c + 2.0 * s12 * c * sn + s22 * sn * sn - 2.0 * (h1 * c + h2 * sn)
         if cost < best_cost:
-            best, best_cost = (c, sn), cost
-    c, sn = best
-    r1, r2 = m1 - (b11 * c + b12 * sn), m2 - (b21 * c + b22 * sn)
-    return np.array([i11 * r1 + i12 * r2, i12 * r1 + i22 * r2, math.atan2(sn, c)])
+            best_c, best_s, best_cost = c, sn, cost
+    r1, r2 = m1 - (b11 * best_c + b12 * best_s), m2 - (b21 * best_c + b22 * best_s)
+    return np.array([i11 * r1 + i12 * r2, i12 * r1 + i22 * r2, math.atan2(best_s, best_c)])

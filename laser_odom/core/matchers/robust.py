@@ -6,6 +6,9 @@ weight w(r) = rho'(r) / r (Zhang, "Parameter estimation techniques", 1997).
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 KERNELS = ('none', 'huber', 'cauchy', 'tukey')
@@ -25,21 +28,35 @@ def robust_weights(residuals: np.ndarray, kernel: str, scale: float) -> np.ndarr
     raise ValueError(f'unknown robust kernel {kernel!r}; valid: {", ".join(KERNELS)}')
 
 
+@numba.njit(cache=True, nogil=True)
 def trimmed_mask(residuals: np.ndarray, keep_fraction: float) -> np.ndarray:
     """Keep the ``keep_fraction`` smallest absolute residuals (trimmed ICP).
 
     Chetverikov et al., "The Trimmed Iterative Closest Point Algorithm", ICPR 2002.
+    Exactly ``ceil(keep_fraction * n)`` are kept; among residuals equal to the last
+    kept one, the earliest are.
     """
     n = residuals.shape[0]
-    keep = int(np.ceil(np.clip(keep_fraction, 0.0, 1.0) * n))
+    keep = int(math.ceil(min(max(keep_fraction, 0.0), 1.0) * n))
     if keep >= n:
-        return np.ones(n, dtype=bool)
-    mask = np.zeros(n, dtype=bool)
-    if keep > 0:
-        mask[np.argpartition(np.abs(residuals), keep - 1)[:keep]] = True
+        return np.ones(n, dtype=np.bool_)
+    mask = np.zeros(n, dtype=np.bool_)
+    if keep <= 0:
+        return mask
+    magnitude = np.abs(residuals)
+    threshold = np.partition(magnitude, keep - 1)[keep - 1]
+    mask[:] = magnitude < threshold
+    ties = keep - int(np.count_nonzero(mask))
+    for i in range(n):
+        if ties <= 0:
+            break
+        if magnitude[i] == threshold:
+            mask[i] = True
+            ties -= 1
     return mask
 
 
+@numba.njit(cache=True, nogil=True)
 def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
                            max_fraction: float, sigma_multiplier: float = 3.0) -> float:
     """Choose how many pairs to keep from the residual distribution itself.
@@ -51,9 +68,9 @@ def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
     """
     if residuals.size == 0:
         return max_fraction
-    abs_r = np.abs(residuals)
-    sigma = 1.4826 * float(np.median(abs_r))
+    magnitude = np.abs(residuals)
+    sigma = 1.4826 * np.median(magnitude)
     if sigma <= 0.0:
         return max_fraction
-    fraction = float(np.mean(abs_r <= sigma_multiplier * sigma))
-    return float(np.clip(fraction, min_fraction, max_fraction))
+    fraction = np.count_nonzero(magnitude <= sigma_multiplier * sigma) / magnitude.size
+    return min(max(fraction, min_fraction), max_fraction)

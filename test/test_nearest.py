@@ -1,0 +1,64 @@
+"""The bearing index finds exactly the nearest point a KD-tree finds, within the gate."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.nearest import BearingIndex
+
+
+def kd_nearest(points: np.ndarray, queries: np.ndarray, gate: float):
+    """Return the KD-tree's answer, as ``BearingIndex.nearest`` gives it."""
+    if len(points) == 0:
+        return np.full(len(queries), np.inf), np.zeros(len(queries), dtype=int)
+    return cKDTree(points).query(queries, k=1, distance_upper_bound=gate)
+
+
+@pytest.mark.parametrize('seed', range(40))
+def test_random_clouds_agree_with_a_kd_tree(seed):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(0.0, rng.choice([0.2, 3.0]), (int(rng.integers(0, 80)), 2))
+    queries = rng.normal(0.0, 3.0, (60, 2))
+    gate = float(rng.choice([0.05, 0.3, 2.0, 50.0]))
+    distance, index = BearingIndex(points).nearest(queries, gate)
+    want_distance, want_index = kd_nearest(points, queries, gate)
+    assert np.array_equal(index, want_index)
+    assert np.allclose(distance, want_distance)
+
+
+def test_a_scan_ring_across_the_back_agrees_and_finds_its_own_points():
+    """A 360 deg scan: bearings wrap at +-pi, and every point is its own nearest."""
+    angles = np.linspace(-math.pi, math.pi, 720, endpoint=False)
+    ranges = 3.0 + np.sin(5 * angles)
+    points = np.column_stack((ranges * np.cos(angles), ranges * np.sin(angles)))
+    index = BearingIndex(points)
+    distance, nearest = index.nearest(points, 0.01)
+    assert np.array_equal(nearest, np.arange(720)) and np.all(distance == 0.0)
+    rng = np.random.default_rng(3)
+    queries = points + rng.normal(0.0, 0.1, points.shape)
+    got = index.nearest(queries, 0.25)
+    want = kd_nearest(points, queries, 0.25)
+    assert np.array_equal(got[1], want[1]) and np.allclose(got[0], want[0])
+
+
+def test_queries_at_the_origin_and_points_at_the_origin():
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, -0.5]])
+    queries = np.array([[0.0, 0.0], [0.1, 0.0], [-0.2, -0.2], [5.0, 5.0]])
+    distance, index = BearingIndex(points).nearest(queries, 1.0)
+    assert index.tolist() == [0, 0, 0, 3]  # the last: nothing within 1 m -> n
+    assert distance[3] == np.inf and distance[0] == 0.0
+
+
+def test_trimming_keeps_exactly_the_smallest_and_the_earliest_ties():
+    residuals = np.array([0.3, -0.1, 0.2, -0.2, 0.5, 0.2])
+    assert trimmed_mask(residuals, 0.5).tolist() == [False, True, True, True, False, False]
+    assert trimmed_mask(residuals, 1.0).all() and not trimmed_mask(residuals, 0.0).any()
+    assert trimmed_mask(residuals, 0.01).tolist() == [False, True, False, False, False, False]
+    # 1.4826 * median |r| = 0.2965: 3 sigma keeps all; 0.5 sigma only |r| <= 0.148.
+    assert adaptive_keep_fraction(residuals, 0.1, 1.0, 3.0) == 1.0
+    assert adaptive_keep_fraction(residuals, 0.1, 1.0, 0.5) == pytest.approx(1 / 6)
+    assert adaptive_keep_fraction(residuals, 0.5, 0.9, 0.5) == 0.5
+    assert adaptive_keep_fraction(np.zeros(0), 0.5, 0.9) == 0.9
