@@ -62,3 +62,21 @@ def test_trimming_keeps_exactly_the_smallest_and_the_earliest_ties():
     assert adaptive_keep_fraction(residuals, 0.1, 1.0, 0.5) == pytest.approx(1 / 6)
     assert adaptive_keep_fraction(residuals, 0.5, 0.9, 0.5) == 0.5
     assert adaptive_keep_fraction(np.zeros(0), 0.5, 0.9) == 0.9
+
+
+@pytest.mark.parametrize('seed', range(30))
+def test_k_nearest_agrees_with_a_kd_tree(seed):
+    rng = np.random.default_rng(100 + seed)
+    points = rng.normal(0.0, 2.0, (int(rng.integers(1, 60)), 2))
+    queries = np.vstack((points[:10], rng.normal(0.0, 2.0, (30, 2))))
+    k, gate = int(rng.integers(1, 25)), float(rng.choice([0.3, 1.0, np.inf]))
+    distance, index = BearingIndex(points).k_nearest(queries, k, gate)
+    tree = cKDTree(points)
+    k_eff = min(k, len(points))
+    want_distance, want_index = tree.query(queries, k=k_eff, distance_upper_bound=gate)
+    want_distance = np.asarray(want_distance).reshape(len(queries), k_eff)
+    want_index = np.asarray(want_index).reshape(len(queries), k_eff)
+    assert np.allclose(distance[:, :k_eff], want_distance)
+    want_index = np.where(np.isfinite(want_distance), want_index, len(points))
+    assert np.array_equal(index[:, :k_eff], want_index)
+    assert np.all(np.isinf(distance[:, k_eff:])) and np.all(index[:, k_eff:] == len(points))

@@ -143,7 +143,7 @@ def test_extent_adapts_the_neighbourhood_to_the_sampling():
     assert (surface.count[len(dense):] == 3).all()
     assert surface.valid.all()
     # One query, sliced, gives the same result as a separate estimate.
-    distance, index = scan.tree.query(scan.points, k=30, distance_upper_bound=1.0)
+    distance, index = scan.bearing_index.k_nearest(scan.points, 30, 1.0)
     far = distance[:, 3:]
     far[far > 0.055] = np.inf
     again = normals_from_neighbours(scan, distance, index, 3)
@@ -235,7 +235,7 @@ def _candidates(surface):
 def test_each_rejection_rule_drops_the_pair_it_should():
     reference, surface, config = _rule_setup()
     moved, normals, log_curvature, usable = _candidates(surface)
-    distance, index = reference.tree.query(moved)
+    distance, index = reference.bearing_index.nearest(moved, np.inf)
     rules = pair_rules(surface, index, distance, normals, log_curvature, usable,
                        max_distance=0.2, min_normal_cosine=math.cos(0.5),
                        max_curvature_ratio=1.5)
@@ -243,7 +243,7 @@ def test_each_rejection_rule_drops_the_pair_it_should():
     expected_failures = {'normal': {1, 2}, 'distance': {3}, 'angle': {2, 4}, 'curvature': {5}}
     for rule, failing in expected_failures.items():
         assert set(np.flatnonzero(~rules[rule])) == failing, rule
-    kept, ref_index = associate(reference.tree, surface, moved, normals, log_curvature,
+    kept, ref_index = associate(reference.bearing_index, surface, moved, normals, log_curvature,
                                 usable, 0.2, math.cos(0.5), 1.5)
     assert kept.tolist() == [0]
     assert ref_index.tolist() == [50]           # the wall sample at x = 0
@@ -252,7 +252,7 @@ def test_each_rejection_rule_drops_the_pair_it_should():
 def test_relaxed_thresholds_keep_the_pairs_again():
     reference, surface, config = _rule_setup()
     moved, normals, log_curvature, usable = _candidates(surface)
-    kept, _ = associate(reference.tree, surface, moved, normals, log_curvature, usable,
+    kept, _ = associate(reference.bearing_index, surface, moved, normals, log_curvature, usable,
                         max_distance=0.5, min_normal_cosine=math.cos(1.2),
                         max_curvature_ratio=4.0)
     # Only the undefined normals stay out: that rule has no threshold.

@@ -59,4 +59,4 @@ def test_upside_down_mirrors_the_scan():
 
 def test_tree_is_built_once():
     pts = scan_to_points(make_scan([1.0, 2.0, 3.0]))
-    assert pts.tree is pts.tree
+    assert pts.bearing_index is pts.bearing_index

@@ -167,7 +167,7 @@ def sweep_shift(times: np.ndarray, ranges: np.ndarray, twist_change: np.ndarray)
 def deskewed(scan: ScanPoints, twist: np.ndarray) -> ScanPoints:
     """Return the scan's points moved to the stamp by ``twist``.
 
-    The result is a new object: caches of normals and KD-trees belong to the old
+    The result is a new object: caches of normals and search indices belong to the old
     points. A scan without beam times is returned as it is.
     """
     if scan.times is None:

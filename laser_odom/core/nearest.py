@@ -23,24 +23,15 @@ import math
 import numba
 import numpy as np
 
-TWO_PI = 2.0 * math.pi
-
 
 class BearingIndex:
     """The points of one scan sorted by bearing from the origin, for nearest queries."""
 
     def __init__(self, points: np.ndarray) -> None:
         """Sort ``points`` (N, 2) by bearing; queries answer with indices into ``points``."""
-        points = np.ascontiguousarray(points, dtype=float)
-        bearings = np.arctan2(points[:, 1], points[:, 0])
-        self.order = np.argsort(bearings, kind='stable')
-        self.bearings = np.ascontiguousarray(bearings[self.order])
-        self.sorted_points = np.ascontiguousarray(points[self.order])
-        norm = np.hypot(self.sorted_points[:, 0], self.sorted_points[:, 1])
-        self.directions = np.column_stack((np.cos(self.bearings), np.sin(self.bearings)))
-        self.directions[norm > 0.0] = (self.sorted_points[norm > 0.0]
-                                       / norm[norm > 0.0, None])
-        self.n = int(points.shape[0])
+        self.order, self.bearings, self.sorted_points, self.directions = _sort_by_bearing(
+            np.ascontiguousarray(points, dtype=float).reshape(-1, 2))
+        self.n = int(self.order.shape[0])
 
     def nearest(self, queries: np.ndarray, max_distance: float
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -49,25 +40,65 @@ class BearingIndex:
         Like ``cKDTree.query(queries, k=1, distance_upper_bound=max_distance)``: a query
         with no point within ``max_distance`` gets distance ``inf`` and index ``n``.
         """
+        distance, index = self.k_nearest(queries, 1, max_distance)
+        return distance[:, 0], index[:, 0]
+
+    def k_nearest(self, queries: np.ndarray, k: int, max_distance: float = np.inf
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Return distances and indices (N, k) of each query's k nearest points, nearest first.
+
+        Like ``cKDTree.query(queries, k, distance_upper_bound=max_distance)``: missing
+        neighbours (beyond ``max_distance``, or fewer than k points) have distance
+        ``inf`` and index ``n``.
+        """
         queries = np.ascontiguousarray(queries, dtype=float).reshape(-1, 2)
-        return nearest_by_bearing(self.sorted_points, self.bearings, self.directions,
-                                  self.order, queries, float(max_distance))
+        return k_nearest_by_bearing(self.sorted_points, self.bearings, self.directions,
+                                    self.order, queries, int(k), float(max_distance))
+
+
+@numba.njit(cache=True, nogil=True)
+def _sort_by_bearing(points: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return the order by bearing, the sorted bearings, points and unit directions.
+
+    A point at the origin has bearing 0 and direction (1, 0) (its distance bound,
+    ``|q x u|`` or ``|q|``, still never exceeds its true distance ``|q|``).
+    """
+    n = points.shape[0]
+    bearings = np.empty(n)
+    for i in range(n):
+        bearings[i] = math.atan2(points[i, 1], points[i, 0])
+    order = np.argsort(bearings, kind='mergesort')
+    sorted_points = np.empty((n, 2))
+    directions = np.empty((n, 2))
+    for j in range(n):
+        x, y = points[order[j], 0], points[order[j], 1]
+        sorted_points[j, 0], sorted_points[j, 1] = x, y
+        norm = math.sqrt(x * x + y * y)
+        if norm > 0.0:
+            directions[j, 0], directions[j, 1] = x / norm, y / norm
+        else:
+            directions[j, 0], directions[j, 1] = 1.0, 0.0
+    return order, bearings[order], sorted_points, directions
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
 def _walk(points: np.ndarray, directions: np.ndarray, order: np.ndarray, qx: float,
-          qy: float, first: int, direction: int, steps: int, best2: float,
-          best: int) -> tuple[float, int, int]:
+          qy: float, first: int, direction: int, steps: int, best2: np.ndarray,
+          best: np.ndarray) -> int:
     """Walk the ring from ``first`` in ``direction`` (+1 or -1) while a closer point may lie.
 
-    A point whose bearing is ``g`` from the query's is at least ``|q| sin g`` away
-    (``g`` <= 90 deg; ``|q x u|`` with ``u`` its unit direction) or ``|q|`` away
-    (beyond). Bearings along the walk move away from the query's monotonically, so
-    once that bound exceeds the best distance every point further along is farther
-    too. Returns the best squared distance and index, and the points visited.
+    ``best2`` and ``best`` hold the k nearest so far (squared distances ascending,
+    sorted positions; ``-1`` where none yet, with the gate's square as distance) and
+    are updated in place. A point whose bearing is ``g`` from the query's is at least
+    ``|q| sin g`` away (``g`` <= 90 deg; ``|q x u|`` with ``u`` its unit direction)
+    or ``|q|`` away (beyond). Bearings along the walk move away from the query's
+    monotonically, so once that bound exceeds the k-th distance every point further
+    along is farther too. Returns the number of points visited.
     """
     n = points.shape[0]
-    reach = math.sqrt(best2)
+    k = best2.shape[0]
+    reach = math.sqrt(best2[k - 1])
     radius = math.sqrt(qx * qx + qy * qy)
     j = first
     visited = 0
@@ -82,33 +113,56 @@ def _walk(points: np.ndarray, directions: np.ndarray, order: np.ndarray, qx: flo
             break
         dx, dy = points[j, 0] - qx, points[j, 1] - qy
         d2 = dx * dx + dy * dy
-        if d2 < best2 or (d2 == best2 and best >= 0 and order[j] < order[best]):
-            best2, best = d2, j
-            reach = math.sqrt(best2)
+        slot = k
+        # Ties go to the lower original index, so the answer is independent of the walk.
+        while slot > 0 and (d2 < best2[slot - 1] or (
+                d2 == best2[slot - 1] and best[slot - 1] >= 0
+                and order[j] < order[best[slot - 1]])):
+            slot -= 1
+        if slot < k:
+            for m in range(k - 1, slot, -1):
+                best2[m], best[m] = best2[m - 1], best[m - 1]
+            best2[slot], best[slot] = d2, j
+            reach = math.sqrt(best2[k - 1])
         j += direction
         visited += 1
-    return best2, best, visited
+    return visited
+
+
+@numba.njit(cache=True, nogil=True)
+def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
+                         order: np.ndarray, queries: np.ndarray, k: int, max_distance: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled kernel of :meth:`BearingIndex.k_nearest` (points sorted by bearing)."""
+    n = points.shape[0]
+    count = queries.shape[0]
+    k = max(k, 1)
+    distance = np.full((count, k), np.inf)
+    index = np.full((count, k), n, dtype=np.int64)
+    if n == 0:
+        return distance, index
+    limit2 = max_distance * max_distance
+    best2 = np.empty(k)
+    best = np.empty(k, dtype=np.int64)
+    for i in range(count):
+        qx, qy = queries[i, 0], queries[i, 1]
+        best2[:] = limit2
+        best[:] = -1
+        start = np.searchsorted(bearings, math.atan2(qy, qx))
+        right = _walk(points, directions, order, qx, qy, start, 1, n, best2, best)
+        _walk(points, directions, order, qx, qy, start - 1, -1, n - right, best2, best)
+        for m in range(k):
+            if best[m] >= 0:
+                distance[i, m] = math.sqrt(best2[m])
+                index[i, m] = order[best[m]]
+    return distance, index
 
 
 @numba.njit(cache=True, nogil=True)
 def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
                        order: np.ndarray, queries: np.ndarray, max_distance: float
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """Compiled kernel of :meth:`BearingIndex.nearest` (points sorted by bearing)."""
-    n = points.shape[0]
-    count = queries.shape[0]
-    distance = np.full(count, np.inf)
-    index = np.full(count, n, dtype=np.int64)
-    if n == 0:
-        return distance, index
-    limit2 = max_distance * max_distance
-    for i in range(count):
-        qx, qy = queries[i, 0], queries[i, 1]
-        start = np.searchsorted(bearings, math.atan2(qy, qx))
-        best2, best, right = _walk(points, directions, order, qx, qy, start, 1, n, limit2, -1)
-        best2, best, _ = _walk(points, directions, order, qx, qy, start - 1, -1, n - right,
-                               best2, best)
-        if best >= 0:
-            distance[i] = math.sqrt(best2)
-            index[i] = order[best]
-    return distance, index
+    """Return the nearest point of each query: :func:`k_nearest_by_bearing` with k = 1."""
+    distance, index = k_nearest_by_bearing(points, bearings, directions, order, queries, 1,
+                                           max_distance)
+    return distance[:, 0].copy(), index[:, 0].copy()

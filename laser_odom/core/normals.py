@@ -5,13 +5,15 @@ radius) has eigenvalues l1 <= l2. The normal is the eigenvector of l1, oriented
 towards the sensor, and the curvature is l1 / (l1 + l2) (Pauly et al., "Efficient
 simplification of point-sampled surfaces", 2002; used by NICP, Serafin & Grisetti 2015,
 and IMLS-SLAM, Deschaud 2018). The 2x2 eigen-problem is solved in closed form for
-all points at once.
+every point in one compiled loop.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 
+import numba
 import numpy as np
 
 from laser_odom.core.scan import ScanPoints
@@ -63,7 +65,7 @@ def estimate_normals(scan: ScanPoints, neighbours: int = 10, radius: float = 0.3
         result = normals_from_neighbours(scan, np.zeros((0, 1)), np.zeros((0, 1), dtype=int),
                                          min_neighbours, origin)
     else:
-        distance, index = k_nearest(scan.tree, scan.points, neighbours, radius)
+        distance, index = k_nearest(scan.bearing_index, scan.points, neighbours, radius)
         if extent is not None:
             far = distance[:, min_neighbours:]
             far[far > extent] = np.inf
@@ -77,42 +79,65 @@ def normals_from_neighbours(scan: ScanPoints, distance: np.ndarray, index: np.nd
                             sensor_origin: np.ndarray | None = None) -> SurfaceNormals:
     """Return normals and curvature from given neighbourhoods (not cached).
 
-    ``distance`` and ``index`` (N, k) are KD-tree query results over the scan's own
+    ``distance`` and ``index`` (N, k) are k-nearest results over the scan's own
     points; an infinite distance marks a missing (or excluded) neighbour. This is the
     computation behind :func:`estimate_normals`, for callers that derive several
-    neighbourhoods from one query.
+    neighbourhoods from one search.
     """
-    n = len(scan)
     origin = np.zeros(2) if sensor_origin is None else np.asarray(sensor_origin, float)
-    present = np.isfinite(distance)
-    count = present.sum(axis=1)
-    # Per-coordinate (N, k) arrays and row sums: much faster than 3-D einsums.
-    safe_count = np.maximum(count, 1)
-    weights = present.astype(float)
-    rows = np.minimum(index, n)
-    xs = np.append(scan.points[:, 0], 0.0)[rows]
-    ys = np.append(scan.points[:, 1], 0.0)[rows]
-    mean = np.column_stack(((xs * weights).sum(axis=1) / safe_count,
-                            (ys * weights).sum(axis=1) / safe_count))
-    dx = (xs - mean[:, 0:1]) * weights
-    dy = (ys - mean[:, 1:2]) * weights
-    cov = np.empty((n, 2, 2))
-    cov[:, 0, 0] = np.einsum('nk,nk->n', dx, dx) / safe_count
-    cov[:, 0, 1] = cov[:, 1, 0] = np.einsum('nk,nk->n', dx, dy) / safe_count
-    cov[:, 1, 1] = np.einsum('nk,nk->n', dy, dy) / safe_count
-    a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
-    half_trace = 0.5 * (a + c)
-    spread = np.sqrt(np.square(0.5 * (a - c)) + b * b)
-    smallest = np.maximum(half_trace - spread, 0.0)
-    total = a + c
-    # Direction of the largest eigenvector is 0.5 * atan2(2b, a - c); the normal is
-    # perpendicular to it.
-    principal = 0.5 * np.arctan2(2.0 * b, a - c)
-    normals = np.column_stack((-np.sin(principal), np.cos(principal)))
-    towards_sensor = np.einsum('nd,nd->n', normals, origin - scan.points)
-    normals[towards_sensor < 0.0] *= -1.0
-    with np.errstate(invalid='ignore', divide='ignore'):
-        curvature = np.where(total > 0.0, smallest / total, 0.0)
-    valid = (count >= min_neighbours) & (total > 0.0)
-    normals[~valid] = 0.0
-    return SurfaceNormals(normals, curvature, cov, valid, count, mean)
+    normals, curvature, covariance, valid, count, centroid = _normals_kernel(
+        np.ascontiguousarray(scan.points, dtype=float).reshape(-1, 2),
+        np.ascontiguousarray(distance, dtype=float),
+        np.ascontiguousarray(index, dtype=np.int64), int(min_neighbours), origin)
+    return SurfaceNormals(normals, curvature, covariance, valid, count, centroid)
+
+
+@numba.njit(cache=True, nogil=True)
+def _normals_kernel(points: np.ndarray, distance: np.ndarray, index: np.ndarray,
+                    min_neighbours: int, origin: np.ndarray) -> tuple:
+    """Compiled kernel of :func:`normals_from_neighbours`, one point at a time.
+
+    The 2x2 covariance ``[[a, b], [b, c]]`` has eigenvalues ``(a + c) / 2 -+
+    sqrt(((a - c) / 2)^2 + b^2)``; its largest eigenvector lies at ``atan2(2b, a - c) /
+    2`` and the normal is perpendicular to it, turned towards the sensor.
+    """
+    n = points.shape[0]
+    normals = np.zeros((n, 2))
+    curvature = np.zeros(n)
+    covariance = np.zeros((n, 2, 2))
+    valid = np.zeros(n, dtype=np.bool_)
+    count = np.zeros(n, dtype=np.int64)
+    centroid = np.zeros((n, 2))
+    for i in range(n):
+        sx = sy = 0.0
+        for c in range(index.shape[1]):
+            if np.isfinite(distance[i, c]):
+                count[i] += 1
+                sx += points[index[i, c], 0]
+                sy += points[index[i, c], 1]
+        size = max(count[i], 1)
+        mx, my = sx / size, sy / size
+        a = b = c2 = 0.0
+        for c in range(index.shape[1]):
+            if np.isfinite(distance[i, c]):
+                dx, dy = points[index[i, c], 0] - mx, points[index[i, c], 1] - my
+                a += dx * dx
+                b += dx * dy
+                c2 += dy * dy
+        a, b, c2 = a / size, b / size, c2 / size
+        centroid[i, 0], centroid[i, 1] = mx, my
+        covariance[i, 0, 0], covariance[i, 0, 1] = a, b
+        covariance[i, 1, 0], covariance[i, 1, 1] = b, c2
+        total = a + c2
+        spread = math.sqrt((0.5 * (a - c2)) ** 2 + b * b)
+        smallest = max(0.5 * total - spread, 0.0)
+        curvature[i] = smallest / total if total > 0.0 else 0.0
+        valid[i] = count[i] >= min_neighbours and total > 0.0
+        if not valid[i]:
+            continue
+        principal = 0.5 * math.atan2(2.0 * b, a - c2)
+        nx, ny = -math.sin(principal), math.cos(principal)
+        if nx * (origin[0] - points[i, 0]) + ny * (origin[1] - points[i, 1]) < 0.0:
+            nx, ny = -nx, -ny
+        normals[i, 0], normals[i, 1] = nx, ny
+    return normals, curvature, covariance, valid, count, centroid

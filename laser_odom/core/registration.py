@@ -142,8 +142,8 @@ def surface_fit(reference: ScanPoints, points: np.ndarray, pose: se2.Pose,
     """
     if len(points) == 0 or len(reference) == 0:
         return 0.0, 0.0
-    distance, _ = reference.tree.query(se2.transform_points(pose, points),
-                                       distance_upper_bound=4.0 * sigma)
+    distance, _ = reference.bearing_index.nearest(se2.transform_points(pose, points),
+                                                  4.0 * sigma)
     fit = float(np.mean(np.exp(-0.5 * np.square(distance / sigma))))
     return fit, float(np.mean(distance <= 2.0 * sigma))
 

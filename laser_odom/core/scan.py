@@ -3,9 +3,9 @@
 ``LaserScan`` mirrors the fields of ``sensor_msgs/LaserScan`` without depending on
 ROS, so the core, the node and the replay harness share one representation.
 ``ScanPoints`` is the matcher's view of a scan: finite points in the base frame in
-beam order, with a lazily built KD-tree and a cache for per-scan derived data
-(normals, curvature) so that each is computed once per scan even though a scan is
-first the current scan and then the reference of the next match.
+beam order, with a lazily built nearest-neighbour index (by bearing) and a cache for
+per-scan derived data (normals, curvature) so that each is computed once per scan even
+though a scan is first the current scan and then the reference of the next match.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
 from laser_odom.core.nearest import BearingIndex
@@ -101,11 +100,6 @@ class ScanPoints:
         if len(self) == 0:
             return 1.0
         return float(np.sqrt(np.mean(np.sum(np.square(self.points), axis=1))))
-
-    @cached_property
-    def tree(self) -> cKDTree:
-        """KD-tree over the points, built on first use and then reused."""
-        return cKDTree(self.points)
 
     @cached_property
     def bearing_index(self) -> BearingIndex:

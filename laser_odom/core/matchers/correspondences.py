@@ -1,11 +1,16 @@
-"""Correspondence search shared by all matchers: nearest reference points by KD-tree."""
+"""Correspondence search shared by all matchers: nearest reference points by bearing.
+
+Every matcher pairs through a :class:`laser_odom.core.nearest.BearingIndex` (exact
+gated nearest-neighbour search, compiled), built once per reference scan.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from laser_odom.core.nearest import BearingIndex
 
 
 @dataclass
@@ -29,35 +34,27 @@ class Correspondences:
         return Correspondences(self.current[keep], self.reference[keep], self.distance[keep])
 
 
-def nearest_neighbours(tree: cKDTree, points: np.ndarray,
+def nearest_neighbours(index: BearingIndex, points: np.ndarray,
                        max_distance: float) -> Correspondences:
-    """Pair each point with its nearest tree point, gated at ``max_distance``.
+    """Pair each point with its nearest indexed point, gated at ``max_distance``.
 
-    Points with no tree point within ``max_distance`` get no pair (the KD-tree query
-    is bounded, so far points cost little).
+    Points with no indexed point within ``max_distance`` get no pair (the search is
+    bounded, so far points cost little).
     """
-    if len(points) == 0 or tree.n == 0:
+    if len(points) == 0 or index.n == 0:
         empty = np.zeros(0, dtype=int)
         return Correspondences(empty, empty, np.zeros(0))
-    distance, index = tree.query(points, k=1, distance_upper_bound=max_distance)
+    distance, index = index.nearest(points, max_distance)
     found = np.isfinite(distance)
     current = np.flatnonzero(found)
     return Correspondences(current, index[found], distance[found])
 
 
-def k_nearest(tree: cKDTree, points: np.ndarray, k: int,
+def k_nearest(index: BearingIndex, points: np.ndarray, k: int,
               max_distance: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-    """Return distances and indices (N, k) of the k nearest tree points.
+    """Return distances and indices (N, k) of the k nearest indexed points.
 
     Missing neighbours (beyond ``max_distance`` or fewer than k points) have
-    distance ``inf`` and index ``tree.n``.
+    distance ``inf`` and index ``index.n``.
     """
-    k_eff = max(1, min(k, tree.n))
-    distance, index = tree.query(points, k=k_eff, distance_upper_bound=max_distance)
-    if k_eff == 1:
-        distance, index = distance[:, None], index[:, None]
-    if k_eff < k:
-        pad = k - k_eff
-        distance = np.pad(distance, ((0, 0), (0, pad)), constant_values=np.inf)
-        index = np.pad(index, ((0, 0), (0, pad)), constant_values=tree.n)
-    return distance, index
+    return index.k_nearest(points, k, max_distance)

@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
@@ -22,6 +21,7 @@ from laser_odom.core.matchers.information import (
     residual_variance)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.nearest import BearingIndex
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import densify, ScanPoints
@@ -88,7 +88,7 @@ class IcpMatcher(ScanMatcher):
         # ``max_iterations`` caps each of the two phases.
         iterations = 0
         converged = False
-        phases = (lambda: (reference.points, reference.tree),
+        phases = (lambda: (reference.points, reference.bearing_index),
                   lambda: self._dense_reference(reference))
         for phase in phases:
             target, tree = phase()
@@ -111,16 +111,16 @@ class IcpMatcher(ScanMatcher):
             information=information, covariance=covariance_from_information(information),
             correspondences=len(pairs))
 
-    def _dense_reference(self, reference: ScanPoints) -> tuple[np.ndarray, cKDTree]:
-        """Return the densified reference and its KD-tree, built once per reference scan."""
+    def _dense_reference(self, reference: ScanPoints) -> tuple[np.ndarray, BearingIndex]:
+        """Return the densified reference and its index, built once per reference scan."""
         cfg = self.config
         key = ('icp_dense', cfg.reference_spacing, cfg.max_densify_gap)
         if key not in reference.cache:
             dense = densify(reference, cfg.reference_spacing, cfg.max_densify_gap)
-            reference.cache[key] = (dense, cKDTree(dense))
+            reference.cache[key] = (dense, BearingIndex(dense))
         return reference.cache[key]
 
-    def _iterate(self, target: np.ndarray, tree: cKDTree, current: ScanPoints,
+    def _iterate(self, target: np.ndarray, tree: BearingIndex, current: ScanPoints,
                  estimate: se2.Pose) -> tuple[se2.Pose | None, int, bool]:
         """Run up to ``max_iterations`` ICP iterations against ``target``.
 
@@ -182,7 +182,7 @@ def surface_information(reference: ScanPoints, moved: np.ndarray, estimate: se2.
     (as in Censi, "An accurate closed-form estimate of ICP's covariance", ICRA 2007).
     """
     surface = estimate_normals(reference, neighbours=20, radius=0.5)
-    pairs = nearest_neighbours(reference.tree, moved, cfg.max_correspondence_distance)
+    pairs = nearest_neighbours(reference.bearing_index, moved, cfg.max_correspondence_distance)
     pairs = pairs.subset(surface.valid[pairs.reference])
     if len(pairs) < 3:
         return np.zeros((3, 3))

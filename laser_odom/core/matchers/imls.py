@@ -206,11 +206,10 @@ class ImlsMatcher(ScanMatcher):
         """
         cfg = self.config
         probe = points[::SEARCH_STRIDE]
-        tree = reference.tree
+        index = reference.bearing_index
 
         def overlap(candidate: se2.Pose) -> float:
-            distance, _ = tree.query(se2.transform_points(candidate, probe),
-                                     distance_upper_bound=cfg.radius)
+            distance, _ = index.nearest(se2.transform_points(candidate, probe), cfg.radius)
             return float(np.mean(np.isfinite(distance)))
 
         best, best_overlap = guess, overlap(guess)

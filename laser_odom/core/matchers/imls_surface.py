@@ -22,19 +22,21 @@ the best points of every list are kept so that no direction becomes unobservable
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 
+import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
+from laser_odom.core.nearest import BearingIndex, k_nearest_by_bearing
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.scan import ScanPoints
 
 
 @dataclass
 class SurfaceModel:
-    """A scan's points and normals, padded for masked KD-tree lookups.
+    """A scan's points and normals, padded for masked neighbour lookups.
 
-    Row ``n`` of ``points`` and ``normals`` is a zero pad that missing KD-tree
+    Row ``n`` of ``points`` and ``normals`` is a zero pad that missing neighbour
     neighbours (index ``tree.n``) point to; ``usable[n]`` is False, as is ``usable``
     of every point without a well-defined normal. Derived once: ``offset`` is
     ``p_i . n_i`` (the tangent-line distance is ``x . n_i - offset_i``), ``normal_x``
@@ -42,7 +44,7 @@ class SurfaceModel:
     planarity).
     """
 
-    tree: cKDTree
+    index: BearingIndex
     points: np.ndarray
     normals: np.ndarray
     usable: np.ndarray
@@ -100,7 +102,7 @@ def surface_model(scan: ScanPoints, normal_neighbours: int, normal_radius: float
                                extent=normal_extent)
     pad = np.zeros((1, 2))
     model = SurfaceModel(
-        tree=scan.tree,
+        index=scan.bearing_index,
         points=np.vstack((scan.points, pad)),
         normals=np.vstack((surface.normals, pad)),
         usable=np.append(surface.valid, False),
@@ -115,7 +117,7 @@ def model_from_arrays(points: np.ndarray, normals: np.ndarray,
     n = points.shape[0]
     ok = np.ones(n, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
     pad = np.zeros((1, 2))
-    return SurfaceModel(cKDTree(points), np.vstack((points, pad)), np.vstack((normals, pad)),
+    return SurfaceModel(BearingIndex(points), np.vstack((points, pad)), np.vstack((normals, pad)),
                         np.append(ok, False), np.zeros(n + 1))
 
 
@@ -124,41 +126,66 @@ def implicit_surface(model: SurfaceModel, queries: np.ndarray, h: float, radius:
     """Evaluate the IMLS function I(x) (IMLS-SLAM eq. 1) at every query point.
 
     The sums run over the ``max_neighbours`` nearest usable reference points within
-    ``radius`` (one bounded KD-tree query, then masked sums; no per-point loop).
+    ``radius`` (one bounded k-nearest search, then the sums, in one compiled loop).
     Weights are taken relative to the nearest neighbour, ``exp(-(d^2 - d_0^2)/h^2)``:
     the ratio I(x) is unchanged, but far queries do not underflow to 0 / 0.
     """
+    queries = np.ascontiguousarray(queries, dtype=float).reshape(-1, 2)
+    index = model.index
+    value, normal, defined, count, mean, nearest = _implicit_surface(
+        index.sorted_points, index.bearings, index.directions, index.order, model.normals,
+        model.usable, model.offset, queries, h, radius, max(1, min(max_neighbours, index.n)),
+        max(min_neighbours, 1))
+    return SurfaceSample(value, normal, defined, count, mean, nearest)
+
+
+@numba.njit(cache=True, nogil=True)
+def _implicit_surface(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
+                      order: np.ndarray, normals: np.ndarray, usable: np.ndarray,
+                      offset: np.ndarray, queries: np.ndarray, h: float, radius: float,
+                      k: int, min_neighbours: int) -> tuple:
+    """Compiled kernel of :func:`implicit_surface` (padded model arrays, sorted index)."""
     m = queries.shape[0]
-    n = model.tree.n
+    n = order.shape[0]
+    value = np.zeros(m)
+    normal = np.zeros((m, 2))
+    defined = np.zeros(m, dtype=np.bool_)
+    count = np.zeros(m, dtype=np.int64)
+    mean = np.zeros((m, 2))
+    nearest = np.full(m, n, dtype=np.int64)
     if m == 0 or n == 0:
-        return SurfaceSample(np.zeros(m), np.zeros((m, 2)), np.zeros(m, dtype=bool),
-                             np.zeros(m, dtype=int), np.zeros((m, 2)), np.full(m, n))
-    k = max(1, min(max_neighbours, n))
-    distance, index = model.tree.query(queries, k=k, distance_upper_bound=radius)
-    if k == 1:
-        distance, index = distance[:, None], index[:, None]
-    present = model.usable[index]
-    count = np.count_nonzero(present, axis=1)
-    defined = count >= max(min_neighbours, 1)
-    squared = np.where(present, distance * distance, np.inf)
-    nearest = np.argmin(squared, axis=1)
-    rows = np.arange(m)
-    with np.errstate(invalid='ignore'):
-        weights = np.exp((squared[rows, nearest][:, None] - squared) / (h * h))
-    weights[~defined] = 0.0
-    weights[:, 0][~defined] = 1.0        # keeps 0 / 0 out of undefined rows
-    plane = (queries[:, 0:1] * model.normal_x[index] + queries[:, 1:2] * model.normal_y[index]
-             - model.offset[index])
-    value = np.einsum('mk,mk->m', weights, plane) / weights.sum(axis=1)
-    value[~defined] = 0.0
-    nearest_index = np.where(defined, index[rows, nearest], n)
-    normal = model.normals[nearest_index]
-    mean = np.column_stack((np.einsum('mk,mk->m', weights, model.normal_x[index]),
-                            np.einsum('mk,mk->m', weights, model.normal_y[index])))
-    length = np.hypot(mean[:, 0], mean[:, 1])
-    mean = np.where(defined[:, None] & (length[:, None] > 0.0),
-                    mean / np.maximum(length, 1e-300)[:, None], 0.0)
-    return SurfaceSample(value, normal, defined, count, mean, nearest_index)
+        return value, normal, defined, count, mean, nearest
+    distance, index = k_nearest_by_bearing(sorted_points, bearings, directions, order,
+                                           queries, k, radius)
+    for q in range(m):
+        first = -1
+        for c in range(k):  # neighbours come nearest first: the first usable is nearest
+            if usable[index[q, c]]:
+                count[q] += 1
+                if first < 0:
+                    first = c
+        if count[q] < min_neighbours:
+            continue
+        defined[q] = True
+        base = distance[q, first] ** 2
+        total = plane = mx = my = 0.0
+        for c in range(k):
+            j = index[q, c]
+            if not usable[j]:
+                continue
+            weight = math.exp((base - distance[q, c] ** 2) / (h * h))
+            total += weight
+            plane += weight * (queries[q, 0] * normals[j, 0] + queries[q, 1] * normals[j, 1]
+                               - offset[j])
+            mx += weight * normals[j, 0]
+            my += weight * normals[j, 1]
+        value[q] = plane / total
+        nearest[q] = index[q, first]
+        normal[q, 0], normal[q, 1] = normals[nearest[q], 0], normals[nearest[q], 1]
+        length = math.hypot(mx, my)
+        if length > 0.0:
+            mean[q, 0], mean[q, 1] = mx / length, my / length
+    return value, normal, defined, count, mean, nearest
 
 
 def project_onto_surface(queries: np.ndarray, values: np.ndarray,

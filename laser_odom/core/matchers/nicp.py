@@ -276,7 +276,7 @@ class NicpMatcher(ScanMatcher):
         rotated_normals = cur.normals_usable @ rot_t
         moved = rotated + estimate[:2]
         pick, ref_index = associate(
-            reference.tree, ref, moved, rotated_normals, cur.log_curvature_usable,
+            reference.bearing_index, ref, moved, rotated_normals, cur.log_curvature_usable,
             cur.usable_ones, cfg.max_correspondence_distance,
             math.cos(cfg.max_normal_angle), cfg.max_curvature_ratio)
         if pick.size < cfg.min_correspondences:

@@ -23,18 +23,25 @@ and one Gauss-Newton step solves ``(sum w J^T Omega J) dx = -sum w J^T Omega e``
 
 from __future__ import annotations
 
+import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from laser_odom.core.degeneracy import degenerate_directions
 from laser_odom.core.matchers.nicp_surface import NicpSurface
+from laser_odom.core.nearest import BearingIndex, nearest_by_bearing
 
 
-def pair_rules(reference: NicpSurface, reference_index: np.ndarray, distance: np.ndarray,
+RULES = ('normal', 'distance', 'angle', 'curvature')
+"""The NICP pair rules (Sec. IV-A), in the column order of :func:`rule_table`."""
+
+
+@numba.njit(cache=True, nogil=True)
+def rule_table(ref_normals: np.ndarray, ref_log_curvature: np.ndarray, ref_usable: np.ndarray,
+               reference_index: np.ndarray, distance: np.ndarray,
                rotated_normals: np.ndarray, log_curvature: np.ndarray,
                current_usable: np.ndarray, max_distance: float, min_normal_cosine: float,
-               max_curvature_ratio: float) -> dict[str, np.ndarray]:
-    """Return, per rule, which candidate pairs pass it (NICP Sec. IV-A).
+               max_curvature_ratio: float) -> np.ndarray:
+    """Return (M, 4) booleans: which candidate pair passes which rule of :data:`RULES`.
 
     Candidates are current points (their ``rotated_normals`` = R n, ``log_curvature``
     and ``current_usable``) paired with ``reference_index``. A pair is kept when both
@@ -43,39 +50,74 @@ def pair_rules(reference: NicpSurface, reference_index: np.ndarray, distance: np
     (``angle``), and ``|log c_i - log c_j|`` is at most ``max_curvature_ratio``
     (``curvature``): a corner never pairs with a wall.
     """
-    ref_normals = reference.normals[reference_index]
-    cosine = np.einsum('nd,nd->n', rotated_normals, ref_normals)
-    ratio = np.abs(log_curvature - reference.log_curvature[reference_index])
-    return {
-        'normal': current_usable & reference.usable[reference_index],
-        'distance': distance <= max_distance,
-        'angle': cosine >= min_normal_cosine,
-        'curvature': ratio <= max_curvature_ratio,
-    }
+    count = reference_index.shape[0]
+    table = np.empty((count, 4), dtype=np.bool_)
+    for m in range(count):
+        j = reference_index[m]
+        cosine = (rotated_normals[m, 0] * ref_normals[j, 0]
+                  + rotated_normals[m, 1] * ref_normals[j, 1])
+        table[m, 0] = current_usable[m] and ref_usable[j]
+        table[m, 1] = distance[m] <= max_distance
+        table[m, 2] = cosine >= min_normal_cosine
+        table[m, 3] = abs(log_curvature[m] - ref_log_curvature[j]) <= max_curvature_ratio
+    return table
 
 
-def associate(tree: cKDTree, reference: NicpSurface, moved: np.ndarray,
+def pair_rules(reference: NicpSurface, reference_index: np.ndarray, distance: np.ndarray,
+               rotated_normals: np.ndarray, log_curvature: np.ndarray,
+               current_usable: np.ndarray, max_distance: float, min_normal_cosine: float,
+               max_curvature_ratio: float) -> dict[str, np.ndarray]:
+    """Return, per rule of :data:`RULES`, which candidate pairs pass it (NICP Sec. IV-A)."""
+    table = rule_table(reference.normals, reference.log_curvature, reference.usable,
+                       np.asarray(reference_index, dtype=np.int64),
+                       np.asarray(distance, dtype=float), np.asarray(rotated_normals, float),
+                       np.asarray(log_curvature, dtype=float),
+                       np.asarray(current_usable, dtype=np.bool_), max_distance,
+                       min_normal_cosine, max_curvature_ratio)
+    return {rule: table[:, column] for column, rule in enumerate(RULES)}
+
+
+@numba.njit(cache=True, nogil=True)
+def _associate(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
+               order: np.ndarray, ref_normals: np.ndarray, ref_log_curvature: np.ndarray,
+               ref_usable: np.ndarray, moved: np.ndarray, rotated_normals: np.ndarray,
+               log_curvature: np.ndarray, usable: np.ndarray, max_distance: float,
+               min_normal_cosine: float, max_curvature_ratio: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled kernel of :func:`associate` (the reference index's arrays unpacked)."""
+    distance, nearest = nearest_by_bearing(sorted_points, bearings, directions, order, moved,
+                                           max_distance)
+    found = np.flatnonzero(nearest < order.shape[0])
+    table = rule_table(ref_normals, ref_log_curvature, ref_usable, nearest[found],
+                       distance[found], rotated_normals[found], log_curvature[found],
+                       usable[found], max_distance, min_normal_cosine, max_curvature_ratio)
+    keep = np.empty(found.shape[0], dtype=np.bool_)
+    for m in range(found.shape[0]):
+        keep[m] = table[m, 0] and table[m, 1] and table[m, 2] and table[m, 3]
+    return found[keep], nearest[found][keep]
+
+
+def associate(index: BearingIndex, reference: NicpSurface, moved: np.ndarray,
               rotated_normals: np.ndarray, log_curvature: np.ndarray, usable: np.ndarray,
               max_distance: float, min_normal_cosine: float,
               max_curvature_ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """Pair current points with their nearest reference points and apply the NICP rules.
 
-    The nearest reference point is searched among the measured points (``tree``);
+    The nearest reference point is searched among the measured points (``index``);
     the errors then use the reference surface's (possibly smoothed) points.
 
     ``moved`` and ``rotated_normals`` are the current points and normals under the
-    pose estimate; ``tree`` indexes the reference points. Returns the positions (in
+    pose estimate; ``index`` indexes the reference points. Returns the positions (in
     ``moved``) and the reference indices of the pairs that pass every rule of
-    :func:`pair_rules`.
+    :func:`rule_table`.
     """
-    distance, index = tree.query(moved, k=1, distance_upper_bound=max_distance)
-    found = np.flatnonzero(index < tree.n)
-    ref_index = index[found]
-    rules = pair_rules(reference, ref_index, distance[found], rotated_normals[found],
-                       log_curvature[found], usable[found], max_distance,
-                       min_normal_cosine, max_curvature_ratio)
-    keep = rules['normal'] & rules['distance'] & rules['angle'] & rules['curvature']
-    return found[keep], ref_index[keep]
+    return _associate(index.sorted_points, index.bearings, index.directions, index.order,
+                      reference.normals, reference.log_curvature, reference.usable,
+                      np.ascontiguousarray(moved, dtype=float),
+                      np.ascontiguousarray(rotated_normals, dtype=float),
+                      np.asarray(log_curvature, dtype=float),
+                      np.asarray(usable, dtype=np.bool_), max_distance, min_normal_cosine,
+                      max_curvature_ratio)
 
 
 def dense_information(info_point: np.ndarray, info_normal: np.ndarray) -> np.ndarray:
@@ -107,15 +149,21 @@ def residuals_and_jacobians(pose: np.ndarray, points: np.ndarray, normals: np.nd
     return error, jac
 
 
+@numba.njit(cache=True, nogil=True)
 def chi_squared(point_error: np.ndarray, normal_error: np.ndarray, info_point: np.ndarray,
                 info_normal: np.ndarray) -> np.ndarray:
     """Return ``e^T Omega e`` per pair for the block-diagonal NICP information."""
-    ex, ey = point_error[:, 0], point_error[:, 1]
-    return (info_point[:, 0] * ex * ex + 2.0 * info_point[:, 1] * ex * ey
-            + info_point[:, 2] * ey * ey
-            + info_normal * np.einsum('nd,nd->n', normal_error, normal_error))
+    count = point_error.shape[0]
+    chi2 = np.empty(count)
+    for m in range(count):
+        ex, ey = point_error[m, 0], point_error[m, 1]
+        chi2[m] = (info_point[m, 0] * ex * ex + 2.0 * info_point[m, 1] * ex * ey
+                   + info_point[m, 2] * ey * ey
+                   + info_normal[m] * (normal_error[m, 0] ** 2 + normal_error[m, 1] ** 2))
+    return chi2
 
 
+@numba.njit(cache=True, nogil=True)
 def normal_equations(rotated_points: np.ndarray, rotated_normals: np.ndarray,
                      point_error: np.ndarray, normal_error: np.ndarray,
                      info_point: np.ndarray, info_normal: np.ndarray,
@@ -128,19 +176,25 @@ def normal_equations(rotated_points: np.ndarray, rotated_normals: np.ndarray,
     ``H_tt = Omega_p``, ``H_t,theta = Omega_p a``, ``H_theta,theta = a^T Omega_p a +
     omega_n |b|^2``, ``g_t = Omega_p e_p``, ``g_theta = a^T Omega_p e_p + omega_n b^T e_n``.
     """
-    pxx, pxy, pyy = info_point[:, 0], info_point[:, 1], info_point[:, 2]
-    ax, ay = -rotated_points[:, 1], rotated_points[:, 0]
-    bx, by = -rotated_normals[:, 1], rotated_normals[:, 0]
-    oax, oay = pxx * ax + pxy * ay, pxy * ax + pyy * ay
-    oex = pxx * point_error[:, 0] + pxy * point_error[:, 1]
-    oey = pxy * point_error[:, 0] + pyy * point_error[:, 1]
-    terms = np.stack((
-        pxx, pxy, pyy, oax, oay,
-        ax * oax + ay * oay + info_normal * (bx * bx + by * by),
-        oex, oey,
-        ax * oex + ay * oey + info_normal * (bx * normal_error[:, 0] + by * normal_error[:, 1]),
-    ))
-    s = terms @ weights
+    s = np.zeros(9)
+    for m in range(rotated_points.shape[0]):
+        w = weights[m]
+        pxx, pxy, pyy = info_point[m, 0], info_point[m, 1], info_point[m, 2]
+        ax, ay = -rotated_points[m, 1], rotated_points[m, 0]
+        bx, by = -rotated_normals[m, 1], rotated_normals[m, 0]
+        oax, oay = pxx * ax + pxy * ay, pxy * ax + pyy * ay
+        oex = pxx * point_error[m, 0] + pxy * point_error[m, 1]
+        oey = pxy * point_error[m, 0] + pyy * point_error[m, 1]
+        s[0] += w * pxx
+        s[1] += w * pxy
+        s[2] += w * pyy
+        s[3] += w * oax
+        s[4] += w * oay
+        s[5] += w * (ax * oax + ay * oay + info_normal[m] * (bx * bx + by * by))
+        s[6] += w * oex
+        s[7] += w * oey
+        s[8] += w * (ax * oex + ay * oey
+                     + info_normal[m] * (bx * normal_error[m, 0] + by * normal_error[m, 1]))
     hessian = np.array([[s[0], s[1], s[3]], [s[1], s[2], s[4]], [s[3], s[4], s[5]]])
     return hessian, s[6:9].copy()
 

@@ -134,7 +134,7 @@ def _neighbourhoods(scan: ScanPoints,
                     settings: SurfaceSettings) -> tuple[SurfaceNormals, SurfaceNormals]:
     """Return the matching normals and the wider ones behind the information.
 
-    One KD-tree query serves both: the matching neighbourhood is its first
+    One k-nearest search serves both: the matching neighbourhood is its first
     ``neighbours`` columns within ``radius`` (beyond ``min_neighbours`` only within
     ``extent``, see :func:`estimate_normals`), the wider one its first
     ``information_neighbours`` columns within ``information_radius``.
@@ -144,7 +144,7 @@ def _neighbourhoods(scan: ScanPoints,
                                         settings.min_neighbours)
         return empty, empty
     k = max(settings.neighbours, settings.information_neighbours)
-    distance, index = k_nearest(scan.tree, scan.points, k,
+    distance, index = k_nearest(scan.bearing_index, scan.points, k,
                                 max(settings.radius, settings.information_radius))
     near = distance[:, :settings.neighbours].copy()
     near[near > settings.radius] = np.inf
@@ -168,7 +168,7 @@ def nicp_surface(scan: ScanPoints, settings: SurfaceSettings) -> NicpSurface:
     curvature is below ``flat_curvature`` and 1 elsewhere (NICP Sec. IV-B). With
     ``smooth_points`` each flat point is moved onto the line fitted to its
     neighbourhood (its total-least-squares surface estimate), which removes most of
-    the range noise from the point error; the KD-tree keeps the measured points.
+    the range noise from the point error; the search index keeps the measured points.
     """
     key = ('nicp_surface', settings)
     cached = scan.cache.get(key)

@@ -2,7 +2,7 @@
 
 Censi, "An ICP variant using a point-to-line metric", ICRA 2008. Each current point,
 moved by the current estimate, is paired with the segment between its nearest
-reference point ``j1`` (one bounded KD-tree query) and the closer of ``j1``'s
+reference point ``j1`` (one bounded search in the bearing index) and the closer of ``j1``'s
 neighbours in beam order (Sec. III, step 2); pairs across a range discontinuity or a
 gap of dropped beams are not segments. The error is the distance from the point to
 the line through that segment, ``n^T (R p + t - q)``, and each iteration minimises the
