@@ -18,6 +18,7 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py package.xml
 	$(BIN)/python -m pip install --quiet -r requirements-dev.txt
 	$(BIN)/python -m pip install --quiet setuptools wheel
 	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
+	$(BIN)/laser_odom_warmup
 	touch $(STAMP)
 
 venv: $(STAMP)

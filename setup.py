@@ -34,6 +34,7 @@ setup(
             'laser_odom_convert = laser_odom.tools.convert:main',
             'laser_odom_bench = laser_odom.tools.bench:main',
             'laser_odom_soak = laser_odom.tools.soak:main',
+            'laser_odom_warmup = laser_odom.tools.warmup:main',
             'laser_odom_tune = laser_odom.tools.tune:main',
         ],
     },

@@ -68,7 +68,7 @@ def _sort_by_bearing(points: np.ndarray
     bearings = np.empty(n)
     for i in range(n):
         bearings[i] = math.atan2(points[i, 1], points[i, 0])
-    order = np.argsort(bearings, kind='mergesort')
+    order = np.argsort(bearings)
     sorted_points = np.empty((n, 2))
     directions = np.empty((n, 2))
     for j in range(n):

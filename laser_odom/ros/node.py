@@ -40,6 +40,7 @@ from std_srvs.srv import Trigger
 
 from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
+from laser_odom.core.warmup import warm_up
 from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
 from laser_odom.ros import extrinsic
 from laser_odom.ros.conversions import (
@@ -62,6 +63,9 @@ DIAGNOSTICS_PERIOD = 1.0
 
 LATENCY_WINDOW = 1000
 """Recent receipt-to-publish latencies kept for /diagnostics."""
+
+WARM_UP_NOTE_SECONDS = 2.0
+"""A start whose kernel warm-up took longer than this says so (it compiled them)."""
 
 
 class LaserOdomNode(Node):
@@ -108,6 +112,7 @@ class LaserOdomNode(Node):
         self._received = 0
         self._wake = threading.Event()
         self._stop = threading.Event()
+        self._warm_up(settings.pipeline.matcher)
         self._scan_sub = self.create_subscription(
             LaserScanMsg, 'scan', self._on_scan, SCAN_QOS)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -141,6 +146,14 @@ class LaserOdomNode(Node):
     def set_parameters(self, parameter_list: list[Parameter]) -> list[SetParametersResult]:
         """Set parameters one at a time, each as :meth:`set_parameters_atomically` does."""
         return [self.set_parameters_atomically([p]) for p in parameter_list]
+
+    def _warm_up(self, matcher: str) -> None:
+        """Compile (or load) the matcher's kernels before the first scan can arrive."""
+        done = warm_up([matcher])
+        if done.seconds > WARM_UP_NOTE_SECONDS:
+            self.get_logger().info(
+                f'compiled the {matcher} kernels in {done.seconds:.1f} s (once after an '
+                f'install; cached in {done.cache_dir} for later starts)')
 
     def _log_startup(self) -> None:
         """Say once what the node runs with and where it reads and writes."""

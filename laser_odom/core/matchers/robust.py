@@ -44,7 +44,7 @@ def trimmed_mask(residuals: np.ndarray, keep_fraction: float) -> np.ndarray:
     if keep <= 0:
         return mask
     magnitude = np.abs(residuals)
-    threshold = np.partition(magnitude, keep - 1)[keep - 1]
+    threshold = np.sort(magnitude)[keep - 1]
     mask[:] = magnitude < threshold
     ties = keep - int(np.count_nonzero(mask))
     for i in range(n):
@@ -68,8 +68,9 @@ def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
     """
     if residuals.size == 0:
         return max_fraction
-    magnitude = np.abs(residuals)
-    sigma = 1.4826 * np.median(magnitude)
+    magnitude = np.sort(np.abs(residuals))
+    size = magnitude.size
+    sigma = 1.4826 * 0.5 * (magnitude[(size - 1) // 2] + magnitude[size // 2])  # the median
     if sigma <= 0.0:
         return max_fraction
     fraction = np.count_nonzero(magnitude <= sigma_multiplier * sigma) / magnitude.size
