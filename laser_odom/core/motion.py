@@ -43,6 +43,20 @@ class MotionModel:
     def forget_intervals(self) -> None:
         """Forget the sensor period too (a new sensor or a restarted clock)."""
         self.intervals: deque[float] = deque(maxlen=PERIOD_WINDOW)
+        self._period: tuple[float, float, bool] | None = None
+
+    def _period_statistics(self) -> tuple[float, float, bool]:
+        """Return the median and mean of the recent intervals and whether they are bursty.
+
+        Computed once per new interval: a scan asks for its effective interval several
+        times (prediction, de-skewing, the rate check, the velocity update).
+        """
+        if self._period is None:
+            window = np.asarray(self.intervals)
+            median = float(np.median(window))
+            bursty = bool(np.mean(window < 0.5 * median) > JITTER_FRACTION)
+            self._period = (median, float(np.mean(window)), bursty)
+        return self._period
 
     def effective_dt(self, dt: float) -> float:
         """Return the interval the motion is scaled by.
@@ -57,11 +71,9 @@ class MotionModel:
         """
         if len(self.intervals) < 5:
             return dt
-        window = np.asarray(self.intervals)
-        median = float(np.median(window))
-        short = window < 0.5 * median
-        if np.mean(short) > JITTER_FRACTION:
-            return float(np.mean(window))
+        median, mean, bursty = self._period_statistics()
+        if bursty:
+            return mean
         return median if dt < 0.5 * median else dt
 
     def gap_exceeded(self, dt: float) -> bool:
@@ -98,6 +110,7 @@ class MotionModel:
         """
         if dt > 0.0:
             self.intervals.append(dt)
+            self._period = None
         if not (0.0 < dt <= self.config.max_scan_gap and se2.is_finite_pose(step)):
             self.velocity = np.zeros(3)
             return

@@ -23,6 +23,10 @@ import math
 import numba
 import numpy as np
 
+HINT_STEPS = 16
+"""Steps from a hinted position to the query's place among the bearings before a
+binary search takes over."""
+
 
 class BearingIndex:
     """The points of one scan sorted by bearing from the origin, for nearest queries."""
@@ -40,8 +44,10 @@ class BearingIndex:
         Like ``cKDTree.query(queries, k=1, distance_upper_bound=max_distance)``: a query
         with no point within ``max_distance`` gets distance ``inf`` and index ``n``.
         """
-        distance, index = self.k_nearest(queries, 1, max_distance)
-        return distance[:, 0], index[:, 0]
+        queries = np.ascontiguousarray(queries, dtype=float).reshape(-1, 2)
+        return nearest_by_bearing(self.sorted_points, self.bearings, self.directions,
+                                  self.order, queries, float(max_distance),
+                                  np.full(queries.shape[0], -1, dtype=np.int64))
 
     def k_nearest(self, queries: np.ndarray, k: int, max_distance: float = np.inf
                   ) -> tuple[np.ndarray, np.ndarray]:
@@ -160,9 +166,71 @@ def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: n
 
 @numba.njit(cache=True, nogil=True)
 def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
-                       order: np.ndarray, queries: np.ndarray, max_distance: float
-                       ) -> tuple[np.ndarray, np.ndarray]:
-    """Return the nearest point of each query: :func:`k_nearest_by_bearing` with k = 1."""
-    distance, index = k_nearest_by_bearing(points, bearings, directions, order, queries, 1,
-                                           max_distance)
-    return distance[:, 0].copy(), index[:, 0].copy()
+                       order: np.ndarray, queries: np.ndarray, max_distance: float,
+                       hints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the distance to and index of each query's nearest point (k = 1).
+
+    ``hints`` (one sorted position per query, -1 for none) are where the previous
+    search of the same point ended: an ICP iteration moves the points little, so the
+    hinted point bounds the search at once and the query's place among the bearings
+    is a few steps away. The answer does not depend on the hints (the search stays
+    exact); they are overwritten with this search's sorted positions (-1: none found).
+    """
+    n = points.shape[0]
+    count = queries.shape[0]
+    distance = np.full(count, np.inf)
+    index = np.full(count, n, dtype=np.int64)
+    if n == 0:
+        hints[:] = -1
+        return distance, index
+    limit2 = max_distance * max_distance
+    for i in range(count):
+        qx, qy = queries[i, 0], queries[i, 1]
+        radius, bearing = math.sqrt(qx * qx + qy * qy), math.atan2(qy, qx)
+        best2, best = limit2, -1
+        hint = hints[i]
+        start = -1
+        if hint >= 0:
+            dx, dy = points[hint, 0] - qx, points[hint, 1] - qy
+            if dx * dx + dy * dy <= limit2:
+                best2, best = dx * dx + dy * dy, hint
+            start = hint  # moved to the first position whose bearing is >= the query's
+            for _ in range(HINT_STEPS):
+                if start > 0 and bearings[start - 1] >= bearing:
+                    start -= 1
+                elif start < n and bearings[start] < bearing:
+                    start += 1
+                else:
+                    break
+            else:
+                start = -1
+        if start < 0:
+            start = np.searchsorted(bearings, bearing)
+        # The walks of :func:`_walk`, on scalars: k = 1 is the hot path of every matcher.
+        reach = math.sqrt(best2)
+        steps = n
+        for direction in (1, -1):
+            j = start if direction == 1 else start - 1
+            visited = 0
+            while visited < steps:
+                if j >= n:
+                    j -= n
+                elif j < 0:
+                    j += n
+                ux, uy = directions[j, 0], directions[j, 1]
+                bound = abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
+                if bound > reach:
+                    break
+                dx, dy = points[j, 0] - qx, points[j, 1] - qy
+                d2 = dx * dx + dy * dy
+                if d2 < best2 or (d2 == best2 and best >= 0 and order[j] < order[best]):
+                    best2, best = d2, j
+                    reach = math.sqrt(d2)
+                j += direction
+                visited += 1
+            steps = n - visited
+        hints[i] = best
+        if best >= 0:
+            distance[i] = math.sqrt(best2)
+            index[i] = order[best]
+    return distance, index

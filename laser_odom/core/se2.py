@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 Pose = np.ndarray
 """A planar pose ``[x, y, theta]`` (float64, shape (3,))."""
 
 
+@numba.njit(cache=True, nogil=True)
 def wrap_angle(angle: float | np.ndarray) -> float | np.ndarray:
-    """Wrap an angle (or array of angles) into [-pi, pi)."""
+    """Wrap an angle (or array of angles) into [-pi, pi) (compiled: kernels use it too)."""
     return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
@@ -44,6 +46,22 @@ def from_matrix(m: np.ndarray) -> Pose:
 
 def compose(a: Pose, b: Pose) -> Pose:
     """Return ``a * b``: the pose b expressed in a's parent frame."""
+    return compose_poses(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+
+
+def inverse(a: Pose) -> Pose:
+    """Return ``a^-1``."""
+    return inverse_pose(np.asarray(a, dtype=float))
+
+
+def relative(a: Pose, b: Pose) -> Pose:
+    """Return ``a^-1 * b``: the pose of b seen from a (the motion from a to b)."""
+    return relative_pose(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+
+
+@numba.njit(cache=True, nogil=True)
+def compose_poses(a: Pose, b: Pose) -> Pose:
+    """Compiled :func:`compose` of two float pose arrays (for kernels and the wrapper)."""
     c, s = math.cos(a[2]), math.sin(a[2])
     return np.array([
         a[0] + c * b[0] - s * b[1],
@@ -52,8 +70,9 @@ def compose(a: Pose, b: Pose) -> Pose:
     ])
 
 
-def inverse(a: Pose) -> Pose:
-    """Return ``a^-1``."""
+@numba.njit(cache=True, nogil=True)
+def inverse_pose(a: Pose) -> Pose:
+    """Compiled :func:`inverse` of a float pose array."""
     c, s = math.cos(a[2]), math.sin(a[2])
     return np.array([
         -c * a[0] - s * a[1],
@@ -62,9 +81,10 @@ def inverse(a: Pose) -> Pose:
     ])
 
 
-def relative(a: Pose, b: Pose) -> Pose:
-    """Return ``a^-1 * b``: the pose of b seen from a (the motion from a to b)."""
-    return compose(inverse(a), b)
+@numba.njit(cache=True, nogil=True)
+def relative_pose(a: Pose, b: Pose) -> Pose:
+    """Compiled :func:`relative` of two float pose arrays."""
+    return compose_poses(inverse_pose(a), b)
 
 
 def transform_points(p: Pose, points: np.ndarray) -> np.ndarray:

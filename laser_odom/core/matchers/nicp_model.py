@@ -86,7 +86,8 @@ def _associate(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.n
                ) -> tuple[np.ndarray, np.ndarray]:
     """Compiled kernel of :func:`associate` (the reference index's arrays unpacked)."""
     distance, nearest = nearest_by_bearing(sorted_points, bearings, directions, order, moved,
-                                           max_distance)
+                                           max_distance,
+                                           np.full(moved.shape[0], -1, dtype=np.int64))
     found = np.flatnonzero(nearest < order.shape[0])
     table = rule_table(ref_normals, ref_log_curvature, ref_usable, nearest[found],
                        distance[found], rotated_normals[found], log_curvature[found],

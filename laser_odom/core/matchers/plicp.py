@@ -30,8 +30,8 @@ from laser_odom.core.matchers.information import (
     covariance_from_information, information_from_jacobians, point_to_line_jacobians,
     residual_variance)
 from laser_odom.core.matchers.plicp_segments import (
-    pair_and_trim, pair_with_segments, Pairs, reference_segments, ReferenceSegments)
-from laser_odom.core.matchers.plicp_solver import solve_normal_equations
+    pair_with_segments, Pairs, reference_segments, ReferenceSegments)
+from laser_odom.core.matchers.plicp_solver import iterate
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.nearest import BearingIndex
 from laser_odom.core.normals import estimate_normals
@@ -175,34 +175,21 @@ class PlicpMatcher(ScanMatcher):
              guess: se2.Pose) -> _Run | None:
         """Iterate from ``guess`` until the step is small, a pairing repeats, or the cap."""
         cfg = self.config
-        estimate = guess.copy()
-        seen: set[int] = set()
-        coarse = cfg.coarse_keep_fraction > 0.0
-        converged = False
-        iterations = 0
-        for iterations in range(1, cfg.max_iterations + 1):
-            pairs = self._pairs(segments, index, current.points, estimate, coarse)
-            if pairs is None:
-                return None
-            delta = solve_normal_equations(pairs.normal_matrix, pairs.normal_vector)
-            updated = se2.compose(delta, estimate)
-            step = se2.relative(estimate, updated)
-            estimate = updated
-            if coarse:
-                coarse = (math.hypot(step[0], step[1]) >= cfg.coarse_step
-                          or abs(step[2]) >= cfg.coarse_step)
-                continue
-            # The exact step depends only on the pairing, so a pairing seen before
-            # means the iteration has entered a cycle (CSM's loop detection): stop.
-            if self.converged_step(step) or pairs.signature in seen:
-                converged = True
-                break
-            seen.add(pairs.signature)
+        found, estimate, converged, iterations, kept, moved, line, segment, delta = iterate(
+            segments.table, index.sorted_points, index.bearings, index.directions,
+            index.order, current.points, np.asarray(guess, dtype=float), cfg.max_iterations,
+            cfg.min_correspondences, cfg.coarse_keep_fraction,
+            cfg.coarse_correspondence_distance, cfg.coarse_step,
+            cfg.max_correspondence_distance, cfg.min_keep_fraction, cfg.max_keep_fraction,
+            cfg.trim_sigma, cfg.convergence_translation, cfg.convergence_rotation)
+        if not found:
+            return None
+        pairs = Pairs(moved, line[:, :2], segment >> 1, line[:, 2])
         # The kept pairs moved by the last step: their residuals at the final estimate.
         moved = se2.transform_points(delta, pairs.points)
         residuals = (pairs.normals[:, 0] * moved[:, 0] + pairs.normals[:, 1] * moved[:, 1]
                      - pairs.offset)
-        return _Run(estimate, converged, iterations, pairs, moved, residuals)
+        return _Run(estimate, bool(converged), int(iterations), pairs, moved, residuals)
 
     def _consensus(self, segments: ReferenceSegments, reference: ScanPoints,
                    current: ScanPoints, run: _Run) -> float:
@@ -214,22 +201,6 @@ class PlicpMatcher(ScanMatcher):
         residuals = line[:, 0] * pts[:, 0] + line[:, 1] * pts[:, 1] - line[:, 2]
         return float(np.count_nonzero(np.abs(residuals) < self.config.restart_residual)
                      / len(current))
-
-    def _pairs(self, segments: ReferenceSegments, index: BearingIndex, points: np.ndarray,
-               estimate: se2.Pose, coarse: bool) -> Pairs | None:
-        """Return the gated and trimmed point-to-line pairs of the current scan's points."""
-        cfg = self.config
-        gate = cfg.coarse_correspondence_distance if coarse else cfg.max_correspondence_distance
-        keep = cfg.coarse_keep_fraction if coarse else -1.0  # negative: adaptive trimming
-        kept, moved, line, segment_id, normal_matrix, normal_vector, signature, paired = \
-            pair_and_trim(segments.table, index.sorted_points, index.bearings,
-                          index.directions, index.order,
-                          points, np.asarray(estimate, dtype=float), gate, keep,
-                          cfg.min_keep_fraction, cfg.max_keep_fraction, cfg.trim_sigma)
-        if paired < cfg.min_correspondences:
-            return None
-        return Pairs(moved, line[:, :2], segment_id >> 1, normal_matrix, normal_vector,
-                     line[:, 2], int(signature))
 
 
 DIRECTION_BINS = 180

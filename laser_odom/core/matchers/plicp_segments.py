@@ -62,41 +62,62 @@ def reference_segments(reference: ScanPoints, max_beam_gap: int,
     cached = reference.cache.get(key)
     if cached is not None:
         return cached
-    pts = reference.points
-    n = pts.shape[0]
-    delta = np.diff(pts, axis=0)
-    length = np.hypot(delta[:, 0], delta[:, 1])
-    ok = ((np.diff(reference.beam_index) <= max_beam_gap) & (length <= max_segment_length)
-          & (length > 0.0))
-    safe = np.where(ok, length, 1.0)
-    seg_normals = np.column_stack((-delta[:, 1] / safe, delta[:, 0] / safe))
-    seg_normals[~ok] = 0.0
-    prev_ok = np.concatenate(([False], ok))
-    next_ok = np.concatenate((ok, [False]))
-    zero = np.zeros((1, 2))
-    prev_n = np.vstack((zero, seg_normals))
-    next_n = np.vstack((seg_normals, zero))
-    padded = np.vstack((pts[:1], pts, pts[-1:]))
-    before, after = padded[:-2], padded[2:]
-    table = np.zeros((n + 1, len(TABLE_COLUMNS)))
-    table[:n, 0:2] = before - after
-    table[:n, 2] = 0.5 * (np.sum(before ** 2, axis=1) - np.sum(after ** 2, axis=1))
-    only_next = next_ok & ~prev_ok
-    only_prev = prev_ok & ~next_ok
-    table[:n, 0:2][only_next | only_prev] = 0.0
-    table[:n, 2][only_next] = 1.0
-    table[:n, 2][only_prev] = -1.0
-    table[:n, 3:5] = prev_n
-    table[:n, 5] = np.sum(prev_n * pts, axis=1)
-    table[:n, 6:8] = next_n
-    table[:n, 8] = np.sum(next_n * pts, axis=1)
-    table[:n, 9] = prev_ok | next_ok
-    result = ReferenceSegments(table, ok, surface_normals(pts, length, ok,
+    points = np.ascontiguousarray(reference.points, dtype=float).reshape(-1, 2)
+    table, ok, length = _segment_table(points, np.asarray(reference.beam_index, np.int64),
+                                       int(max_beam_gap), float(max_segment_length))
+    result = ReferenceSegments(table, ok, surface_normals(points, length, ok,
                                                           information_window))
     reference.cache[key] = result
     return result
 
 
+@numba.njit(cache=True, nogil=True)
+def _segment_table(points: np.ndarray, beam_index: np.ndarray, max_beam_gap: int,
+                   max_segment_length: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Compiled body of :func:`reference_segments`: the table, segment flags, lengths.
+
+    Segment ``j`` joins points ``j`` and ``j + 1``; its unit normal is the segment
+    direction turned by +90 deg, its line offset ``n . r``. Row ``j`` of the table
+    holds the bisector test against ``r[j-1]`` and ``r[j+1]`` (forced to the only
+    side with a segment) and both adjacent lines (zero where there is no segment).
+    """
+    n = points.shape[0]
+    segments = max(n - 1, 0)
+    length = np.zeros(segments)
+    ok = np.zeros(segments, dtype=np.bool_)
+    normal = np.zeros((segments, 2))
+    for j in range(segments):
+        dx, dy = points[j + 1, 0] - points[j, 0], points[j + 1, 1] - points[j, 1]
+        length[j] = math.hypot(dx, dy)
+        ok[j] = (beam_index[j + 1] - beam_index[j] <= max_beam_gap
+                 and 0.0 < length[j] <= max_segment_length)
+        if ok[j]:
+            normal[j, 0], normal[j, 1] = -dy / length[j], dx / length[j]
+    table = np.zeros((n + 1, len(TABLE_COLUMNS)))
+    for j in range(n):
+        before, after = max(j - 1, 0), min(j + 1, n - 1)
+        prev_ok = j > 0 and ok[j - 1]
+        next_ok = j < segments and ok[j]
+        if prev_ok and not next_ok:
+            table[j, 2] = -1.0
+        elif next_ok and not prev_ok:
+            table[j, 2] = 1.0
+        else:
+            table[j, 0] = points[before, 0] - points[after, 0]
+            table[j, 1] = points[before, 1] - points[after, 1]
+            table[j, 2] = 0.5 * ((points[before, 0] ** 2 + points[before, 1] ** 2)
+                                 - (points[after, 0] ** 2 + points[after, 1] ** 2))
+        if prev_ok:
+            table[j, 3], table[j, 4] = normal[j - 1, 0], normal[j - 1, 1]
+            table[j, 5] = normal[j - 1, 0] * points[j, 0] + normal[j - 1, 1] * points[j, 1]
+        if next_ok:
+            table[j, 6], table[j, 7] = normal[j, 0], normal[j, 1]
+            table[j, 8] = normal[j, 0] * points[j, 0] + normal[j, 1] * points[j, 1]
+        table[j, 9] = 1.0 if prev_ok or next_ok else 0.0
+    return table, ok, length
+
+
+@numba.njit(cache=True, nogil=True)
 def surface_normals(points: np.ndarray, length: np.ndarray, segment_ok: np.ndarray,
                     window: float) -> np.ndarray:
     """Return the normal of the line fitted to each point's surface within ``window`` [m].
@@ -111,24 +132,34 @@ def surface_normals(points: np.ndarray, length: np.ndarray, segment_ok: np.ndarr
     normal (they add no information).
     """
     n = points.shape[0]
+    normals = np.zeros((n, 2))
     if n < 3:
-        return np.zeros((n, 2))
+        return normals
     # Arc length along the scan; a break between runs counts as an unbridgeable jump.
-    arc = np.concatenate(([0.0], np.cumsum(np.where(segment_ok, length, 1e9))))
+    arc = np.zeros(n)
+    for j in range(n - 1):
+        arc[j + 1] = arc[j] + (length[j] if segment_ok[j] else 1e9)
     lo = np.searchsorted(arc, arc - 0.5 * window, side='left')
     hi = np.searchsorted(arc, arc + 0.5 * window, side='right')
-    x, y = points[:, 0], points[:, 1]
     sums = np.zeros((n + 1, 5))
-    np.cumsum(np.column_stack((x, y, x * x, x * y, y * y)), axis=0, out=sums[1:])
-    window_sums = sums[hi] - sums[lo]
-    count = (hi - lo).astype(float)
-    mean_x, mean_y = window_sums[:, 0] / count, window_sums[:, 1] / count
-    cxx = window_sums[:, 2] / count - mean_x * mean_x
-    cxy = window_sums[:, 3] / count - mean_x * mean_y
-    cyy = window_sums[:, 4] / count - mean_y * mean_y
-    direction = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
-    normals = np.column_stack((-np.sin(direction), np.cos(direction)))
-    normals[count < 3] = 0.0
+    for j in range(n):
+        x, y = points[j, 0], points[j, 1]
+        sums[j + 1, 0] = sums[j, 0] + x
+        sums[j + 1, 1] = sums[j, 1] + y
+        sums[j + 1, 2] = sums[j, 2] + x * x
+        sums[j + 1, 3] = sums[j, 3] + x * y
+        sums[j + 1, 4] = sums[j, 4] + y * y
+    for j in range(n):
+        count = hi[j] - lo[j]
+        if count < 3:
+            continue
+        sx, sy = sums[hi[j], 0] - sums[lo[j], 0], sums[hi[j], 1] - sums[lo[j], 1]
+        mean_x, mean_y = sx / count, sy / count
+        cxx = (sums[hi[j], 2] - sums[lo[j], 2]) / count - mean_x * mean_x
+        cxy = (sums[hi[j], 3] - sums[lo[j], 3]) / count - mean_x * mean_y
+        cyy = (sums[hi[j], 4] - sums[lo[j], 4]) / count - mean_y * mean_y
+        direction = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)
+        normals[j, 0], normals[j, 1] = -math.sin(direction), math.cos(direction)
     return normals
 
 
@@ -138,18 +169,13 @@ class Pairs:
 
     ``points`` are the paired current points moved by the estimate, ``normals`` and
     ``offset`` their lines ``n . x = n . q``; ``nearest`` is each pair's nearest
-    reference point ``j1``; ``normal_matrix`` and ``normal_vector`` are ``M`` and ``m``
-    of the closed-form step (:func:`.plicp_solver.solve_normal_equations`);
-    ``signature`` identifies the pairing.
+    reference point ``j1``.
     """
 
     points: np.ndarray
     normals: np.ndarray
     nearest: np.ndarray
-    normal_matrix: np.ndarray
-    normal_vector: np.ndarray
     offset: np.ndarray
-    signature: int
 
     def __len__(self) -> int:
         """Return the number of pairs."""
@@ -166,34 +192,37 @@ def pair_with_segments(segments: ReferenceSegments, index: BearingIndex, moved: 
     Returns the indices of the paired current points, their segment ids
     (``2 j1 + side``) and their lines ``(n_x, n_y, n . q)``.
     """
+    moved = np.ascontiguousarray(moved, dtype=float).reshape(-1, 2)
     paired, segment_id, line = _pair(segments.table, index.sorted_points, index.bearings,
-                                     index.directions, index.order,
-                                     np.ascontiguousarray(moved, dtype=float),
-                                     float(max_distance))
+                                     index.directions, index.order, moved,
+                                     float(max_distance),
+                                     np.full(moved.shape[0], -1, dtype=np.int64))
     return paired, segment_id, line
 
 
 @numba.njit(cache=True, nogil=True)
 def _pair(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
-          directions: np.ndarray, order: np.ndarray, moved: np.ndarray, max_distance: float
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Compiled kernel of :func:`pair_with_segments`."""
+          directions: np.ndarray, order: np.ndarray, moved: np.ndarray, max_distance: float,
+          hints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Compiled kernel of :func:`pair_with_segments` (``hints``: see nearest_by_bearing)."""
     _, nearest = nearest_by_bearing(sorted_points, bearings, directions, order, moved,
-                                    max_distance)
+                                    max_distance, hints)
     count = moved.shape[0]
     paired = np.empty(count, dtype=np.int64)
     segment_id = np.empty(count, dtype=np.int64)
     line = np.empty((count, 3))
     k = 0
     for i in range(count):
-        row = table[nearest[i]]
-        if row[9] == 0.0:
+        j = nearest[i]
+        if table[j, 9] == 0.0:
             continue
-        use_next = moved[i, 0] * row[0] + moved[i, 1] * row[1] < row[2]
+        use_next = moved[i, 0] * table[j, 0] + moved[i, 1] * table[j, 1] < table[j, 2]
         first = 6 if use_next else 3
         paired[k] = i
-        segment_id[k] = 2 * nearest[i] + (1 if use_next else 0)
-        line[k, 0], line[k, 1], line[k, 2] = row[first], row[first + 1], row[first + 2]
+        segment_id[k] = 2 * j + (1 if use_next else 0)
+        line[k, 0] = table[j, first]
+        line[k, 1] = table[j, first + 1]
+        line[k, 2] = table[j, first + 2]
         k += 1
     return paired[:k], segment_id[:k], line[:k]
 
@@ -203,13 +232,15 @@ def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.nda
                   directions: np.ndarray, order: np.ndarray, points: np.ndarray,
                   estimate: np.ndarray, max_distance: float, keep_fraction: float,
                   min_keep_fraction: float, max_keep_fraction: float,
-                  trim_sigma: float) -> tuple:
+                  trim_sigma: float, hints: np.ndarray) -> tuple:
     """One PL-ICP pairing: move, pair, trim, and sum the normal equations (compiled).
 
     ``points`` are moved by ``estimate`` and paired (:func:`pair_with_segments`);
     the pairs with the smallest point-to-line residuals are kept - a fixed
     ``keep_fraction``, or when it is negative the adaptive fraction
-    (:func:`adaptive_keep_fraction`). Returns the kept current-point indices, their
+    (:func:`adaptive_keep_fraction`). ``hints`` carry each point's nearest reference
+    point from one iteration to the next (:func:`.nearest.nearest_by_bearing`, updated
+    in place). Returns the kept current-point indices, their
     moved points, lines ``(n_x, n_y, n . q)`` and segment ids, the normal equations
     ``M = sum a a^T``, ``m = sum (n . q) a`` of the closed-form step
     (``a = (n_x, n_y, n . p, n x p)``, :func:`.plicp_solver.solve_normal_equations`),
@@ -217,34 +248,58 @@ def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.nda
     """
     c, s = math.cos(estimate[2]), math.sin(estimate[2])
     moved = np.empty_like(points)
-    moved[:, 0] = c * points[:, 0] - s * points[:, 1] + estimate[0]
-    moved[:, 1] = s * points[:, 0] + c * points[:, 1] + estimate[1]
+    for i in range(points.shape[0]):
+        x, y = points[i, 0], points[i, 1]
+        moved[i, 0] = c * x - s * y + estimate[0]
+        moved[i, 1] = s * x + c * y + estimate[1]
     paired, segment_id, line = _pair(table, sorted_points, bearings, directions, order,
-                                     moved, max_distance)
+                                     moved, max_distance, hints)
     count = paired.shape[0]
     residuals = np.empty(count)
     for k in range(count):
-        p = moved[paired[k]]
-        residuals[k] = line[k, 0] * p[0] + line[k, 1] * p[1] - line[k, 2]
+        i = paired[k]
+        residuals[k] = line[k, 0] * moved[i, 0] + line[k, 1] * moved[i, 1] - line[k, 2]
     if keep_fraction < 0.0:
         keep_fraction = adaptive_keep_fraction(residuals, min_keep_fraction,
                                                max_keep_fraction, trim_sigma)
     mask = trimmed_mask(residuals, keep_fraction)
     kept = np.flatnonzero(mask)
+    size = kept.shape[0]
+    kept_paired = np.empty(size, dtype=np.int64)
+    kept_moved = np.empty((size, 2))
+    kept_line = np.empty((size, 3))
+    kept_segment = np.empty(size, dtype=np.int64)
     big_m = np.zeros((4, 4))
     small_m = np.zeros(4)
-    row = np.empty(4)
     signature = np.uint64(14695981039346656037)
-    for k in kept:
-        p = moved[paired[k]]
-        nx, ny = line[k, 0], line[k, 1]
-        row[0], row[1] = nx, ny
-        row[2], row[3] = nx * p[0] + ny * p[1], ny * p[0] - nx * p[1]
-        for a in range(4):
-            small_m[a] += row[a] * line[k, 2]
-            for b in range(4):
-                big_m[a, b] += row[a] * row[b]
-        for value in (paired[k], segment_id[k]):  # FNV-1a over the pairing
-            signature = (signature ^ np.uint64(value)) * np.uint64(1099511628211)
-    return (paired[kept], moved[paired[kept]], line[kept], segment_id[kept], big_m, small_m,
-            signature, count)
+    prime = np.uint64(1099511628211)
+    for m in range(size):
+        k = kept[m]
+        i = paired[k]
+        px, py = moved[i, 0], moved[i, 1]
+        nx, ny, offset = line[k, 0], line[k, 1], line[k, 2]
+        kept_paired[m], kept_segment[m] = i, segment_id[k]
+        kept_moved[m, 0], kept_moved[m, 1] = px, py
+        kept_line[m, 0], kept_line[m, 1], kept_line[m, 2] = nx, ny, offset
+        a0, a1, a2, a3 = nx, ny, nx * px + ny * py, ny * px - nx * py
+        small_m[0] += a0 * offset
+        small_m[1] += a1 * offset
+        small_m[2] += a2 * offset
+        small_m[3] += a3 * offset
+        big_m[0, 0] += a0 * a0
+        big_m[0, 1] += a0 * a1
+        big_m[0, 2] += a0 * a2
+        big_m[0, 3] += a0 * a3
+        big_m[1, 1] += a1 * a1
+        big_m[1, 2] += a1 * a2
+        big_m[1, 3] += a1 * a3
+        big_m[2, 2] += a2 * a2
+        big_m[2, 3] += a2 * a3
+        big_m[3, 3] += a3 * a3
+        signature = (signature ^ np.uint64(i)) * prime  # FNV-1a over the pairing
+        signature = (signature ^ np.uint64(segment_id[k])) * prime
+    for a in range(4):
+        for b in range(a):
+            big_m[a, b] = big_m[b, a]
+    return (kept_paired, kept_moved, kept_line, kept_segment, big_m, small_m, signature,
+            count)

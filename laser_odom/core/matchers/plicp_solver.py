@@ -15,6 +15,8 @@ import numba
 import numpy as np
 
 from laser_odom.core import se2
+from laser_odom.core.matchers.plicp_segments import pair_and_trim
+from laser_odom.core.se2 import compose_poses, relative_pose
 
 TRANSLATION_RIDGE = 1e-12
 """Relative ridge on the translation block: an unconstrained direction (corridor axis)
@@ -120,3 +122,59 @@ def solve_normal_equations(big_m: np.ndarray, small_m: np.ndarray) -> np.ndarray
             best_c, best_s, best_cost = c, sn, cost
     r1, r2 = m1 - (b11 * best_c + b12 * best_s), m2 - (b21 * best_c + b22 * best_s)
     return np.array([i11 * r1 + i12 * r2, i12 * r1 + i22 * r2, math.atan2(best_s, best_c)])
+
+
+@numba.njit(cache=True, nogil=True)
+def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
+            directions: np.ndarray, order: np.ndarray, points: np.ndarray, guess: np.ndarray,
+            max_iterations: int, min_correspondences: int, coarse_keep_fraction: float,
+            coarse_distance: float, coarse_step: float, max_distance: float,
+            min_keep_fraction: float, max_keep_fraction: float, trim_sigma: float,
+            convergence_translation: float, convergence_rotation: float) -> tuple:
+    """Run PL-ICP iterations from ``guess`` (compiled; the loop of ``PlicpMatcher._run``).
+
+    Each iteration pairs and trims (:func:`.plicp_segments.pair_and_trim`, the coarse
+    phase with its wide gate and fixed keep fraction while a step still exceeds
+    ``coarse_step``) and takes the exact closed-form step. It stops on a step below
+    the convergence thresholds, on a pairing seen before (the step depends only on the
+    pairing, so a repeat is a cycle - CSM's loop detection), or at the cap. Returns
+    whether enough pairs were found, the estimate, whether it converged, the
+    iterations, the last kept pairs (current indices, moved points, lines, segment
+    ids) and the last step.
+    """
+    estimate = guess.copy()
+    hints = np.full(points.shape[0], -1, dtype=np.int64)  # nearest of the last iteration
+    seen = np.zeros(max_iterations, dtype=np.uint64)
+    coarse = coarse_keep_fraction > 0.0
+    converged = False
+    kept = np.zeros(0, dtype=np.int64)
+    moved = np.zeros((0, 2))
+    line = np.zeros((0, 3))
+    segment = np.zeros(0, dtype=np.int64)
+    delta = np.zeros(3)
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        kept, moved, line, segment, big_m, small_m, signature, paired = pair_and_trim(
+            table, sorted_points, bearings, directions, order, points, estimate,
+            coarse_distance if coarse else max_distance,
+            coarse_keep_fraction if coarse else -1.0,  # negative: adaptive trimming
+            min_keep_fraction, max_keep_fraction, trim_sigma, hints)
+        if paired < min_correspondences:
+            return False, estimate, False, iterations, kept, moved, line, segment, delta
+        delta = solve_normal_equations(big_m, small_m)
+        updated = compose_poses(delta, estimate)
+        step = relative_pose(estimate, updated)
+        estimate = updated
+        moved_by = math.hypot(step[0], step[1])
+        if coarse:
+            coarse = moved_by >= coarse_step or abs(step[2]) >= coarse_step
+            continue
+        repeated = False
+        for previous in seen[:iterations - 1]:
+            repeated = repeated or previous == signature
+        if (moved_by < convergence_translation and abs(step[2]) < convergence_rotation) \
+                or repeated:
+            converged = True
+            break
+        seen[iterations - 1] = signature
+    return True, estimate, converged, iterations, kept, moved, line, segment, delta
