@@ -12,10 +12,11 @@ from laser_odom.core.config import pipeline_config_from_params, PipelineConfig
 from laser_odom.core.datasets import load_dataset
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
-from laser_odom.core.matchers.nicp import _undoes, NicpConfig, NicpMatcher
+from laser_odom.core.matchers.nicp import NicpConfig, NicpMatcher
 from laser_odom.core.matchers.nicp_model import (
     associate, chi_squared, dense_information, normal_equations, pair_rules,
     residuals_and_jacobians)
+from laser_odom.core.matchers.nicp_solver import undoes
 from laser_odom.core.matchers.nicp_surface import (
     nicp_surface, normal_variance, point_information, rotation_seed)
 from laser_odom.core.metrics import evaluate
@@ -353,11 +354,11 @@ def test_rotation_seed_finds_the_turn_from_normal_histograms():
 
 def test_only_flips_between_pairings_count_as_oscillation():
     step = np.array([1e-3, -2e-3, 5e-4])
-    assert _undoes(-step, step)                       # a flip back
-    assert _undoes(-0.6 * step, step)
-    assert not _undoes(-0.1 * step, step)             # a Gauss-Newton overshoot fix
-    assert not _undoes(step, step)
-    assert not _undoes(np.array([2e-3, 1e-3, 0.0]), step)   # orthogonal
+    assert undoes(-step, step)                       # a flip back
+    assert undoes(-0.6 * step, step)
+    assert not undoes(-0.1 * step, step)             # a Gauss-Newton overshoot fix
+    assert not undoes(step, step)
+    assert not undoes(np.array([2e-3, 1e-3, 0.0]), step)   # orthogonal
 
 
 def test_too_few_points_fail_cleanly():

@@ -88,58 +88,22 @@ def _sort_by_bearing(points: np.ndarray
     return order, bearings[order], sorted_points, directions
 
 
-@numba.njit(cache=True, nogil=True, inline='always')
-def _walk(points: np.ndarray, directions: np.ndarray, order: np.ndarray, qx: float,
-          qy: float, first: int, direction: int, steps: int, best2: np.ndarray,
-          best: np.ndarray) -> int:
-    """Walk the ring from ``first`` in ``direction`` (+1 or -1) while a closer point may lie.
-
-    ``best2`` and ``best`` hold the k nearest so far (squared distances ascending,
-    sorted positions; ``-1`` where none yet, with the gate's square as distance) and
-    are updated in place. A point whose bearing is ``g`` from the query's is at least
-    ``|q| sin g`` away (``g`` <= 90 deg; ``|q x u|`` with ``u`` its unit direction)
-    or ``|q|`` away (beyond). Bearings along the walk move away from the query's
-    monotonically, so once that bound exceeds the k-th distance every point further
-    along is farther too. Returns the number of points visited.
-    """
-    n = points.shape[0]
-    k = best2.shape[0]
-    reach = math.sqrt(best2[k - 1])
-    radius = math.sqrt(qx * qx + qy * qy)
-    j = first
-    visited = 0
-    while visited < steps:
-        if j >= n:
-            j -= n
-        elif j < 0:
-            j += n
-        ux, uy = directions[j, 0], directions[j, 1]
-        bound = abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
-        if bound > reach:
-            break
-        dx, dy = points[j, 0] - qx, points[j, 1] - qy
-        d2 = dx * dx + dy * dy
-        slot = k
-        # Ties go to the lower original index, so the answer is independent of the walk.
-        while slot > 0 and (d2 < best2[slot - 1] or (
-                d2 == best2[slot - 1] and best[slot - 1] >= 0
-                and order[j] < order[best[slot - 1]])):
-            slot -= 1
-        if slot < k:
-            for m in range(k - 1, slot, -1):
-                best2[m], best[m] = best2[m - 1], best[m - 1]
-            best2[slot], best[slot] = d2, j
-            reach = math.sqrt(best2[k - 1])
-        j += direction
-        visited += 1
-    return visited
-
-
 @numba.njit(cache=True, nogil=True)
 def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
                          order: np.ndarray, queries: np.ndarray, k: int, max_distance: float
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Compiled kernel of :meth:`BearingIndex.k_nearest` (points sorted by bearing)."""
+    """Compiled kernel of :meth:`BearingIndex.k_nearest` (points sorted by bearing).
+
+    Each query walks the ring from its place among the sorted bearings, both ways at
+    once (always on the side whose next point may be nearer), keeping its k nearest
+    (squared distances ascending, with the gate's square until k are found). A point
+    whose bearing is ``g`` from the query's is at least ``|q| sin g`` away (``g`` <= 90
+    deg; ``|q x u|`` with ``u`` its unit direction) or ``|q|`` away (beyond); bearings
+    along a walk move away from the query's monotonically, so once that bound exceeds
+    the k-th distance every point further along is farther too. The two sides together
+    visit each point at most once; ties go to the lower original index, so the answer
+    does not depend on the walk.
+    """
     n = points.shape[0]
     count = queries.shape[0]
     k = max(k, 1)
@@ -154,9 +118,40 @@ def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: n
         qx, qy = queries[i, 0], queries[i, 1]
         best2[:] = limit2
         best[:] = -1
+        radius = math.sqrt(qx * qx + qy * qy)
         start = np.searchsorted(bearings, math.atan2(qy, qx))
-        right = _walk(points, directions, order, qx, qy, start, 1, n, best2, best)
-        _walk(points, directions, order, qx, qy, start - 1, -1, n - right, best2, best)
+        # Walk both ways at once, always on the side whose next point may lie closer, so
+        # that the k-th distance (the reach) shrinks as early as it can.
+        reach = math.sqrt(limit2)
+        right, left = start, start - 1
+        for _ in range(n):
+            j_right = right - n if right >= n else right
+            j_left = left + n if left < 0 else left
+            ux, uy = directions[j_right, 0], directions[j_right, 1]
+            bound_right = abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
+            ux, uy = directions[j_left, 0], directions[j_left, 1]
+            bound_left = abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
+            if min(bound_right, bound_left) > reach:
+                break
+            if bound_right <= bound_left:
+                j = j_right
+                right += 1
+            else:
+                j = j_left
+                left -= 1
+            dx, dy = points[j, 0] - qx, points[j, 1] - qy
+            d2 = dx * dx + dy * dy
+            if d2 <= best2[k - 1]:
+                slot = k
+                while slot > 0 and (d2 < best2[slot - 1] or (
+                        d2 == best2[slot - 1] and best[slot - 1] >= 0
+                        and order[j] < order[best[slot - 1]])):
+                    slot -= 1
+                if slot < k:
+                    for m in range(k - 1, slot, -1):
+                        best2[m], best[m] = best2[m - 1], best[m - 1]
+                    best2[slot], best[slot] = d2, j
+                    reach = math.sqrt(best2[k - 1])
         for m in range(k):
             if best[m] >= 0:
                 distance[i, m] = math.sqrt(best2[m])
@@ -206,7 +201,7 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
                 start = -1
         if start < 0:
             start = np.searchsorted(bearings, bearing)
-        # The walks of :func:`_walk`, on scalars: k = 1 is the hot path of every matcher.
+        # The walks of :func:`k_nearest_by_bearing` on scalars: k = 1 is every matcher's.
         reach = math.sqrt(best2)
         steps = n
         for direction in (1, -1):

@@ -3,9 +3,11 @@
 Serafin & Grisetti, "NICP: Dense Normal Based Point Cloud Registration", IROS 2015,
 for 2D scans. Each iteration pairs every current point with its nearest reference
 point, drops pairs that fail the NICP rules (undefined normal, distance, normal angle,
-curvature ratio), and takes one damped Gauss-Newton (Levenberg-Marquardt) step on the
-4-vector point-and-normal error weighted by the reference point's information and a
-robust kernel (IRLS). The error model is in :mod:`laser_odom.core.matchers.nicp_model`.
+curvature ratio), and takes one damped Gauss-Newton step (a fixed damping of the
+diagonal, not an adaptive Levenberg-Marquardt lambda) on the 4-vector point-and-normal
+error weighted by the reference point's information and a robust kernel (IRLS). The
+error model is in :mod:`laser_odom.core.matchers.nicp_model`, the compiled iterations
+in :mod:`laser_odom.core.matchers.nicp_solver`.
 The information of the result is ``sum w J^T Omega J`` at the solution (with the point
 information debiased for the noise of the normals and scaled by the a-posteriori
 variance factor); when a direction of it is too weak (a featureless corridor's axis)
@@ -24,12 +26,12 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.information import covariance_from_information
-from laser_odom.core.matchers.nicp_model import (
-    associate, chi_squared, is_degenerate, normal_equations)
+from laser_odom.core.matchers.nicp_model import is_degenerate, normal_equations
+from laser_odom.core.matchers.nicp_solver import FAILED_PAIRS, FAILED_SINGULAR, gauss_newton
 from laser_odom.core.matchers.nicp_surface import (
     nicp_surface, NicpSurface, rotation_seed, SurfaceSettings)
 from laser_odom.core.matchers.registry import register
-from laser_odom.core.matchers.robust import KERNELS, robust_weights
+from laser_odom.core.matchers.robust import kernel_code, KERNELS
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
 
@@ -92,7 +94,8 @@ class NicpConfig(MatcherConfig):
     robust_scale: float = param(
         3.0, 'Scale of the robust kernel, in Mahalanobis units.', 1e-6, 1e6)
     damping: float = param(
-        1e-6, 'Levenberg-Marquardt damping, relative to the diagonal of H.', 0.0, 1e3)
+        1e-6, 'Damping of the Gauss-Newton step, relative to the diagonal of H (fixed, '
+        'not an adaptive Levenberg-Marquardt lambda).', 0.0, 1e3)
     restart_inlier_ratio: float = param(
         0.5, 'A match that did not converge or paired fewer than this fraction of the '
         'points is restarted from the normal-histogram rotation.', 0.0, 1.0)
@@ -119,17 +122,6 @@ class NicpConfig(MatcherConfig):
             self.normal_extent, self.information_neighbours, self.information_radius,
             self.max_curvature, self.flat_curvature, self.point_sigma, self.tangent_sigma,
             self.normal_information, self.curvature_floor, self.smooth_points)
-
-
-def _undoes(step: np.ndarray, previous: np.ndarray) -> bool:
-    """Tell whether ``step`` flips back along ``previous``.
-
-    Over 120 degrees apart and at least half as long: the pairing flips between two
-    sets, unlike an ordinary (small) Gauss-Newton correction of an overshoot.
-    """
-    length, previous_length = float(np.linalg.norm(step)), float(np.linalg.norm(previous))
-    return (float(np.dot(step, previous)) < -0.5 * length * previous_length
-            and length > 0.5 * previous_length)
 
 
 @dataclass
@@ -223,85 +215,33 @@ class NicpMatcher(ScanMatcher):
                   start: np.ndarray, length_scale: float) -> MatchResult:
         """Run the robust Gauss-Newton iterations from ``start``; return the result.
 
-        The information of the result is ``sum w J^T Omega J`` at the last
-        linearisation, with the point information debiased for the noise of the
-        normals and divided by the a-posteriori variance factor (mean weighted
-        ``e^T Omega e`` per pair).
+        The iterations are :func:`.nicp_solver.gauss_newton`. The information of the
+        result is ``sum w J^T Omega J`` at the last linearisation, with the point
+        information debiased for the noise of the normals and divided by the
+        a-posteriori variance factor (mean weighted ``e^T Omega e`` per pair).
         """
         cfg = self.config
-        estimate = start.copy()
-        converged = False
-        iterations = 0
-        system = None
-        previous = np.zeros(3)
-        shrink = 1.0
-        for iterations in range(1, cfg.max_iterations + 1):
-            system = self._linearise(reference, ref, cur, estimate)
-            if system is None:
-                return MatchResult.failure(start, iterations, 0, 'too few pairs')
-            step = self._solve(system.hessian, system.gradient)
-            if step is None:
-                return MatchResult.failure(start, iterations, system.pairs, 'singular system')
-            if _undoes(step, previous):
-                # The step (nearly) undoes the previous one: the pairing flips between
-                # two sets. Shrinking the steps on every such reversal settles between
-                # them; ordinary Gauss-Newton corrections restore full steps.
-                shrink *= 0.5
-            else:
-                shrink = min(1.0, 2.0 * shrink)
-            step = shrink * step
-            previous = step
-            estimate = estimate + step
-            estimate[2] = se2.wrap_angle(estimate[2])
-            if (self.converged_step(step)
-                    or float(step @ system.hessian @ step) < cfg.convergence_chi2):
-                converged = True
-                break
-        information = system.reported_information(ref)
+        index = reference.bearing_index
+        status, estimate, converged, iterations, system = gauss_newton(
+            index.sorted_points, index.bearings, index.directions, index.order, ref.points,
+            ref.normals, ref.log_curvature, ref.usable, ref.info_point, ref.info_normal,
+            cur.points_usable, cur.normals_usable, cur.log_curvature_usable,
+            np.asarray(start, dtype=float), cfg.max_iterations, cfg.min_correspondences,
+            cfg.max_correspondence_distance, math.cos(cfg.max_normal_angle),
+            cfg.max_curvature_ratio, kernel_code(cfg.robust_kernel), cfg.robust_scale,
+            cfg.damping, cfg.convergence_translation, cfg.convergence_rotation,
+            cfg.convergence_chi2)
+        pairs, hessian, gradient, residual, variance_factor = system[:5]
+        if status == FAILED_PAIRS:
+            return MatchResult.failure(start, iterations, 0, 'too few pairs')
+        if status == FAILED_SINGULAR:
+            return MatchResult.failure(start, iterations, pairs, 'singular system')
+        information = Linearisation(hessian, gradient, pairs, residual, variance_factor,
+                                    system[5:]).reported_information(ref)
         return MatchResult(
-            pose=estimate, converged=converged, iterations=iterations,
-            inlier_ratio=system.pairs / cur.index.size, residual=system.residual,
+            pose=estimate, converged=bool(converged), iterations=int(iterations),
+            inlier_ratio=pairs / cur.index.size, residual=float(residual),
             information=information, covariance=covariance_from_information(information),
-            correspondences=system.pairs,
+            correspondences=int(pairs),
             degenerate=is_degenerate(information, length_scale,
                                      cfg.degeneracy_min_information))
-
-    def _linearise(self, reference: ScanPoints, ref: NicpSurface, cur: NicpSurface,
-                   estimate: np.ndarray) -> Linearisation | None:
-        """Pair, filter and linearise at ``estimate``; None with too few pairs."""
-        cfg = self.config
-        c, s = math.cos(estimate[2]), math.sin(estimate[2])
-        rot_t = np.array([[c, s], [-s, c]])
-        rotated = cur.points_usable @ rot_t
-        rotated_normals = cur.normals_usable @ rot_t
-        moved = rotated + estimate[:2]
-        pick, ref_index = associate(
-            reference.bearing_index, ref, moved, rotated_normals, cur.log_curvature_usable,
-            cur.usable_ones, cfg.max_correspondence_distance,
-            math.cos(cfg.max_normal_angle), cfg.max_curvature_ratio)
-        if pick.size < cfg.min_correspondences:
-            return None
-        point_error = moved[pick] - ref.points[ref_index]
-        normal_error = rotated_normals[pick] - ref.normals[ref_index]
-        info_point = ref.info_point[ref_index]
-        info_normal = ref.info_normal[ref_index]
-        chi2 = chi_squared(point_error, normal_error, info_point, info_normal)
-        weights = robust_weights(np.sqrt(chi2), cfg.robust_kernel, cfg.robust_scale)
-        hessian, gradient = normal_equations(rotated[pick], rotated_normals[pick], point_error,
-                                             normal_error, info_point, info_normal, weights)
-        distance = np.einsum('nd,nd->n', point_error, ref.normals[ref_index])
-        weight_sum = float(weights.sum())
-        return Linearisation(
-            hessian, gradient, int(pick.size), float(np.sqrt(np.mean(distance * distance))),
-            float(weights @ chi2) / max(weight_sum - 3.0, 1.0),
-            (rotated[pick], rotated_normals[pick], point_error, normal_error, ref_index,
-             weights))
-
-    def _solve(self, hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray | None:
-        """Return the damped Gauss-Newton step ``-(H + mu diag H)^-1 g``, None if singular."""
-        damped = hessian + self.config.damping * np.diag(np.diag(hessian))
-        try:
-            step = -np.linalg.solve(damped, gradient)
-        except np.linalg.LinAlgError:
-            return None
-        return step if np.all(np.isfinite(step)) else None

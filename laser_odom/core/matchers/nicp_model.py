@@ -23,11 +23,14 @@ and one Gauss-Newton step solves ``(sum w J^T Omega J) dx = -sum w J^T Omega e``
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
 from laser_odom.core.degeneracy import degenerate_directions
 from laser_odom.core.matchers.nicp_surface import NicpSurface
+from laser_odom.core.matchers.robust import kernel_weights
 from laser_odom.core.nearest import BearingIndex, nearest_by_bearing
 
 
@@ -210,3 +213,65 @@ def is_degenerate(information: np.ndarray, length_scale: float,
     eigenvalue below ``min_information`` [1/m^2] (a featureless corridor's axis) is weak.
     """
     return bool(np.any(degenerate_directions(information, length_scale, min_information)[2]))
+
+
+@numba.njit(cache=True, nogil=True)
+def linearise(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
+              order: np.ndarray, ref_points: np.ndarray, ref_normals: np.ndarray,
+              ref_log_curvature: np.ndarray, ref_usable: np.ndarray,
+              ref_info_point: np.ndarray, ref_info_normal: np.ndarray, points: np.ndarray,
+              normals: np.ndarray, log_curvature: np.ndarray, estimate: np.ndarray,
+              max_distance: float, min_normal_cosine: float, max_curvature_ratio: float,
+              kernel: int, kernel_scale: float) -> tuple:
+    """Pair, filter and linearise NICP at ``estimate`` (compiled).
+
+    The current ``points``/``normals`` (those with a usable normal) are moved by the
+    estimate and paired (:func:`associate`); each pair's error ``e`` (eq. 2) is
+    weighted by the reference information and the robust kernel (IRLS on the
+    Mahalanobis error ``sqrt(e^T Omega e)``). Returns the number of pairs, ``H`` and
+    ``g`` (:func:`normal_equations`), the RMS point-to-surface distance, the
+    a-posteriori variance factor (weighted ``e^T Omega e`` per degree of freedom) and
+    the terms behind the reported information (rotated points and normals, errors,
+    reference indices, weights of the pairs).
+    """
+    c, s = math.cos(estimate[2]), math.sin(estimate[2])
+    count = points.shape[0]
+    rotated = np.empty((count, 2))
+    rotated_normals = np.empty((count, 2))
+    moved = np.empty((count, 2))
+    for i in range(count):
+        rotated[i, 0] = c * points[i, 0] - s * points[i, 1]
+        rotated[i, 1] = s * points[i, 0] + c * points[i, 1]
+        rotated_normals[i, 0] = c * normals[i, 0] - s * normals[i, 1]
+        rotated_normals[i, 1] = s * normals[i, 0] + c * normals[i, 1]
+        moved[i, 0] = rotated[i, 0] + estimate[0]
+        moved[i, 1] = rotated[i, 1] + estimate[1]
+    pick, ref_index = _associate(sorted_points, bearings, directions, order, ref_normals,
+                                 ref_log_curvature, ref_usable, moved, rotated_normals,
+                                 log_curvature, np.ones(count, dtype=np.bool_),
+                                 max_distance, min_normal_cosine, max_curvature_ratio)
+    pairs = pick.shape[0]
+    point_error = np.empty((pairs, 2))
+    normal_error = np.empty((pairs, 2))
+    info_point = np.empty((pairs, 3))
+    info_normal = np.empty(pairs)
+    squared_distance = 0.0
+    for m in range(pairs):
+        i, j = pick[m], ref_index[m]
+        point_error[m, 0] = moved[i, 0] - ref_points[j, 0]
+        point_error[m, 1] = moved[i, 1] - ref_points[j, 1]
+        normal_error[m, 0] = rotated_normals[i, 0] - ref_normals[j, 0]
+        normal_error[m, 1] = rotated_normals[i, 1] - ref_normals[j, 1]
+        info_point[m, 0], info_point[m, 1] = ref_info_point[j, 0], ref_info_point[j, 1]
+        info_point[m, 2], info_normal[m] = ref_info_point[j, 2], ref_info_normal[j]
+        along = point_error[m, 0] * ref_normals[j, 0] + point_error[m, 1] * ref_normals[j, 1]
+        squared_distance += along * along
+    chi2 = chi_squared(point_error, normal_error, info_point, info_normal)
+    weights = kernel_weights(np.sqrt(chi2), kernel, kernel_scale)
+    picked_points, picked_normals = rotated[pick], rotated_normals[pick]
+    hessian, gradient = normal_equations(picked_points, picked_normals, point_error,
+                                         normal_error, info_point, info_normal, weights)
+    residual = math.sqrt(squared_distance / pairs) if pairs else 0.0
+    variance_factor = (weights @ chi2) / max(weights.sum() - 3.0, 1.0)
+    return (pairs, hessian, gradient, residual, variance_factor, picked_points,
+            picked_normals, point_error, normal_error, ref_index, weights)

@@ -16,16 +16,34 @@ KERNELS = ('none', 'huber', 'cauchy', 'tukey')
 
 def robust_weights(residuals: np.ndarray, kernel: str, scale: float) -> np.ndarray:
     """Return IRLS weights in [0, 1] for ``residuals`` under ``kernel`` with ``scale``."""
-    r = np.abs(residuals) / max(scale, 1e-12)
-    if kernel == 'none':
-        return np.ones_like(r)
-    if kernel == 'huber':
-        return np.where(r <= 1.0, 1.0, 1.0 / np.maximum(r, 1e-12))
-    if kernel == 'cauchy':
-        return 1.0 / (1.0 + r * r)
-    if kernel == 'tukey':
-        return np.where(r < 1.0, (1.0 - r * r) ** 2, 0.0)
-    raise ValueError(f'unknown robust kernel {kernel!r}; valid: {", ".join(KERNELS)}')
+    return kernel_weights(np.asarray(residuals, dtype=float), kernel_code(kernel),
+                          float(scale))
+
+
+def kernel_code(kernel: str) -> int:
+    """Return the number compiled code knows ``kernel`` by (its place in KERNELS)."""
+    if kernel not in KERNELS:
+        raise ValueError(f'unknown robust kernel {kernel!r}; valid: {", ".join(KERNELS)}')
+    return KERNELS.index(kernel)
+
+
+@numba.njit(cache=True, nogil=True)
+def kernel_weights(residuals: np.ndarray, code: int, scale: float) -> np.ndarray:
+    """Compiled :func:`robust_weights`, the kernel given by :func:`kernel_code`.
+
+    huber ``min(1, 1 / r)``, cauchy ``1 / (1 + r^2)``, tukey ``(1 - r^2)^2`` inside
+    ``r < 1`` (else 0), with ``r = |residual| / scale``.
+    """
+    weights = np.ones(residuals.shape[0])
+    for i in range(residuals.shape[0]):
+        r = abs(residuals[i]) / max(scale, 1e-12)
+        if code == 1:
+            weights[i] = 1.0 if r <= 1.0 else 1.0 / max(r, 1e-12)
+        elif code == 2:
+            weights[i] = 1.0 / (1.0 + r * r)
+        elif code == 3:
+            weights[i] = (1.0 - r * r) ** 2 if r < 1.0 else 0.0
+    return weights
 
 
 @numba.njit(cache=True, nogil=True)
