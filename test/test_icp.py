@@ -7,7 +7,7 @@ import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.matchers import create_matcher
-from laser_odom.core.matchers.icp import align_svd
+from laser_odom.core.matchers.icp_solver import align_svd
 from laser_odom.core.scan import densify, scan_to_points, ScanPoints
 from laser_odom.core.simulation import get_world, LaserModel, render_scan
 
@@ -27,7 +27,7 @@ def test_svd_step_is_exact_on_exact_pairs():
     rng = np.random.default_rng(3)
     source = rng.normal(size=(40, 2))
     truth = se2.pose(0.4, -1.2, 2.5)
-    got = align_svd(source, se2.transform_points(truth, source))
+    got = align_svd(source, se2.transform_points(truth, source), np.ones(len(source)))
     assert np.allclose(got, truth, atol=1e-12)
 
 
@@ -35,7 +35,7 @@ def test_svd_step_handles_the_reflection_case():
     # Collinear, mirrored points make the unconstrained SVD solution a reflection.
     source = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.1]])
     target = source * np.array([1.0, -1.0])
-    got = align_svd(source, target)
+    got = align_svd(source, target, np.ones(len(source)))
     rot = se2.rotation(got[2])
     assert math.isclose(np.linalg.det(rot), 1.0)
 

@@ -2,9 +2,9 @@
 
 Besl & McKay, "A method for registration of 3-D shapes", PAMI 1992, with each
 iteration's rigid fit solved in closed form by Arun, Huang & Blostein, "Least-squares
-fitting of two 3-D point sets", PAMI 1987: centre both sets, take the SVD of their
-cross-covariance ``H = U S V^T``, ``R = V diag(1, det(V U^T)) U^T`` (the diagonal
-fixes the reflection case), ``t = mu_q - R mu_p``.
+fitting of two 3-D point sets", PAMI 1987 (the compiled iterations are in
+:mod:`laser_odom.core.matchers.icp_solver`), coarse to fine: beam samples, then the
+reference densified along its surface.
 """
 
 from __future__ import annotations
@@ -16,34 +16,16 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.correspondences import nearest_neighbours
+from laser_odom.core.matchers.icp_solver import iterate
 from laser_odom.core.matchers.information import (
     covariance_from_information, information_from_jacobians, point_to_line_jacobians,
     residual_variance)
 from laser_odom.core.matchers.registry import register
-from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.matchers.robust import trimmed_mask
 from laser_odom.core.nearest import BearingIndex
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import densify, ScanPoints
-
-
-ACCELERATION_COSINE = float(np.cos(np.radians(10.0)))
-"""Successive steps closer than 10 deg in direction count as one consistent creep."""
-
-
-def align_svd(source: np.ndarray, target: np.ndarray,
-              weights: np.ndarray | None = None) -> se2.Pose:
-    """Return the rigid pose minimising ``sum w_i |R s_i + t - q_i|^2`` (Arun et al.)."""
-    w = np.ones(source.shape[0]) if weights is None else weights
-    w_sum = float(w.sum())
-    mu_s = w @ source / w_sum
-    mu_t = w @ target / w_sum
-    cross = (source - mu_s).T @ ((target - mu_t) * w[:, None])
-    u, _, vt = np.linalg.svd(cross)
-    reflection = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    rot = vt.T @ np.diag([1.0, reflection]) @ u.T
-    trans = mu_t - rot @ mu_s
-    return np.array([trans[0], trans[1], np.arctan2(rot[1, 0], rot[0, 0])])
 
 
 @dataclass
@@ -120,55 +102,21 @@ class IcpMatcher(ScanMatcher):
             reference.cache[key] = (dense, BearingIndex(dense))
         return reference.cache[key]
 
-    def _iterate(self, target: np.ndarray, tree: BearingIndex, current: ScanPoints,
+    def _iterate(self, target: np.ndarray, index: BearingIndex, current: ScanPoints,
                  estimate: se2.Pose) -> tuple[se2.Pose | None, int, bool]:
         """Run up to ``max_iterations`` ICP iterations against ``target``.
 
         Returns the estimate (None if pairs ran out), the iterations used and whether
-        the step fell below the convergence thresholds.
+        the step fell below the convergence thresholds (:func:`.icp_solver.iterate`).
         """
         cfg = self.config
-        scale = np.array([1.0, 1.0, current.length_scale])
-        previous_step = None
-        for iteration in range(1, cfg.max_iterations + 1):
-            moved = se2.transform_points(estimate, current.points)
-            pairs = nearest_neighbours(tree, moved, cfg.max_correspondence_distance)
-            if len(pairs) < cfg.min_correspondences:
-                return None, iteration, False
-            keep = adaptive_keep_fraction(
-                pairs.distance, cfg.min_keep_fraction, cfg.max_keep_fraction)
-            pairs = pairs.subset(trimmed_mask(pairs.distance, keep))
-            updated = align_svd(current.points[pairs.current], target[pairs.reference])
-            step = updated - estimate
-            step[2] = se2.wrap_angle(step[2])
-            if self.converged_step(se2.relative(estimate, updated)):
-                return updated, iteration, True
-            estimate = updated
-            if previous_step is not None:
-                estimate = estimate + accelerated_extra(previous_step * scale,
-                                                        step * scale) / scale
-            previous_step = step
-        return estimate, cfg.max_iterations, False
-
-
-def accelerated_extra(previous: np.ndarray, step: np.ndarray,
-                      max_factor: float = 10.0) -> np.ndarray:
-    """Extra move along a consistent ICP step direction (Besl & McKay 1992, Sec. IV-C).
-
-    Point-to-point ICP converges linearly: along a wall it creeps by a shrinking,
-    aligned step each iteration. When two successive steps (in metric units) point the
-    same way within 10 deg and shrink by a ratio r < 1, the remaining creep is the
-    geometric tail ``step * r / (1 - r)``; jumping there saves tens of iterations.
-    The next iteration re-pairs, so an overshoot is corrected.
-    """
-    norm_prev, norm_step = float(np.linalg.norm(previous)), float(np.linalg.norm(step))
-    if norm_prev == 0.0 or norm_step == 0.0:
-        return np.zeros(3)
-    aligned = float(np.dot(previous, step)) / (norm_prev * norm_step)
-    ratio = norm_step / norm_prev
-    if aligned < ACCELERATION_COSINE or ratio >= 1.0:
-        return np.zeros(3)
-    return step * min(ratio / (1.0 - ratio), max_factor)
+        paired, estimate, iterations, converged = iterate(
+            index.sorted_points, index.bearings, index.directions, index.order,
+            np.ascontiguousarray(target, dtype=float), current.points,
+            np.asarray(estimate, dtype=float), cfg.max_iterations, cfg.min_correspondences,
+            cfg.max_correspondence_distance, cfg.min_keep_fraction, cfg.max_keep_fraction,
+            cfg.convergence_translation, cfg.convergence_rotation, current.length_scale)
+        return (estimate if paired else None), int(iterations), bool(converged)
 
 
 def surface_information(reference: ScanPoints, moved: np.ndarray, estimate: se2.Pose,
