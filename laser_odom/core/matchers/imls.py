@@ -47,17 +47,16 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.imls_solver import (
-    advance, fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system,
-    ROTATION_LEVER, step_cosine)
+    advance, fuse_directions, inverted_information, refine, ROTATION_LEVER)
 from laser_odom.core.matchers.imls_surface import (
-    implicit_surface, observability_scores, planarity, project_onto_surface,
-    select_informative, surface_model, SurfaceModel, SurfaceSample)
+    implicit_surface, observability_scores, select_informative, surface_model, SurfaceModel,
+    SurfaceSample)
 from laser_odom.core.matchers.information import (
     covariance_from_information, information_from_jacobians, point_to_line_jacobians,
     residual_variance)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import (
-    adaptive_keep_fraction, KERNELS, robust_weights, trimmed_mask)
+    adaptive_keep_fraction, kernel_code, KERNELS, robust_weights, trimmed_mask)
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
@@ -305,69 +304,28 @@ class ImlsMatcher(ScanMatcher):
         """Iterate projection and Gauss-Newton steps; return (estimate, converged, count).
 
         ``sample`` is the surface at the ``chosen`` points under ``estimate`` within the
-        ``capture`` radius. Two stages: the approach, until a step moves less than
-        ``coarse_tolerance``, then the refinement on a fixed inlier set. The approach
-        reaches out to the capture radius only when the guess is off; after a good
-        guess it keeps to the fine radius, where clutter a little off the walls has no
-        surface value.
+        ``capture`` radius. Two stages (:func:`.imls_solver.refine`): the approach,
+        until a step moves less than ``coarse_tolerance``, then the refinement on a
+        fixed inlier set. The approach reaches out to the capture radius only when the
+        guess is off; after a good guess it keeps to the fine radius, where clutter a
+        little off the walls has no surface value.
         """
         cfg = self.config
         far = float(np.median(np.abs(sample.value))) > COARSE_FRACTION * cfg.radius
-        approach_radius = capture if far else cfg.radius
-        approach = True
-        converged = False
-        iterations = 0
-        previous_step = np.zeros(3)
-        gain = 1.0
-        gated = False
-        while iterations < cfg.max_iterations:
-            iterations += 1
-            if iterations > 1 or not far:
-                sample = self._surface(ref_model, se2.transform_points(estimate, chosen),
-                                       approach_radius if approach else cfg.radius)
-            ok = sample.defined
-            if not approach and not gated:
-                # Entering the refinement: fix the inlier set once (close to the
-                # solution, so that only true outliers stand out), so that the
-                # iterations do not cycle between sets.
-                inlier = np.zeros_like(ok)
-                inlier[ok] = self._inliers(sample.value[ok])
-                chosen, sample, ok = chosen[inlier], sample.subset(inlier), ok[inlier]
-                gated, previous_step, gain = True, np.zeros(3), 1.0
-            if np.count_nonzero(ok) < cfg.min_correspondences:
-                break
-            normals = sample.normal[ok] if cfg.projection_normal == 'nearest' \
-                else sample.mean_normal[ok]
-            moved = se2.transform_points(estimate, chosen[ok])
-            targets = project_onto_surface(moved, sample.value[ok], normals)
-            residuals, jacobians = point_to_plane_system(estimate, chosen[ok], normals,
-                                                         targets)
-            weights = np.ones_like(residuals) if approach else robust_weights(
-                residuals, cfg.robust_kernel, cfg.robust_scale)
-            if cfg.planarity_power > 0.0:
-                weights = weights * planarity(
-                    ref_model.curvature[sample.nearest[ok]]) ** cfg.planarity_power
-            step = gauss_newton_step(jacobians, residuals, weights)
-            cosine = step_cosine(step, previous_step)
-            if approach:
-                # Far from the solution, pairings change a little every iteration and
-                # the steps creep along one direction: extrapolate them (accelerated
-                # ICP, Besl & McKay 1992, section IV-C).
-                gain = min(2.0 * gain, MAX_GAIN) if cosine > ALIGNED_COSINE else 1.0
-            elif cosine < 0.0:
-                # The nearest-point normal jumps when the nearest point changes, so
-                # plain steps can cycle between two poses; shrink them until they settle.
-                gain *= 0.5
-            previous_step = step
-            estimate = advance(estimate, gain * step)
-            if approach:
-                moved_by = max(float(np.hypot(step[0], step[1])), abs(float(step[2])))
-                approach = (moved_by >= cfg.coarse_tolerance
-                            and iterations < COARSE_SHARE * cfg.max_iterations)
-            elif self.converged_step(gain * step):
-                converged = True
-                break
-        return estimate, converged, iterations
+        index = ref_model.index
+        estimate, converged, iterations = refine(
+            index.sorted_points, index.bearings, index.directions, index.order,
+            ref_model.normals, ref_model.usable, ref_model.offset, ref_model.curvature,
+            np.ascontiguousarray(chosen, dtype=float), sample.value, sample.normal,
+            sample.defined, sample.mean_normal, sample.nearest,
+            np.asarray(estimate, dtype=float), far, capture, cfg.h, cfg.radius,
+            cfg.max_neighbours, cfg.min_neighbours, cfg.max_iterations,
+            cfg.min_correspondences, cfg.projection_normal == 'nearest',
+            kernel_code(cfg.robust_kernel), cfg.robust_scale, cfg.planarity_power,
+            cfg.coarse_tolerance, COARSE_SHARE, ALIGNED_COSINE, MAX_GAIN,
+            cfg.min_keep_fraction, cfg.outlier_sigmas, cfg.convergence_translation,
+            cfg.convergence_rotation)
+        return estimate, bool(converged), int(iterations)
 
     def _result(self, reference: ScanPoints, current: ScanPoints, estimate: se2.Pose,
                 converged: bool, iterations: int, selected: int) -> MatchResult:

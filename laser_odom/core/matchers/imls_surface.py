@@ -132,7 +132,7 @@ def implicit_surface(model: SurfaceModel, queries: np.ndarray, h: float, radius:
     """
     queries = np.ascontiguousarray(queries, dtype=float).reshape(-1, 2)
     index = model.index
-    value, normal, defined, count, mean, nearest = _implicit_surface(
+    value, normal, defined, count, mean, nearest = implicit_surface_kernel(
         index.sorted_points, index.bearings, index.directions, index.order, model.normals,
         model.usable, model.offset, queries, h, radius, max(1, min(max_neighbours, index.n)),
         max(min_neighbours, 1))
@@ -140,10 +140,10 @@ def implicit_surface(model: SurfaceModel, queries: np.ndarray, h: float, radius:
 
 
 @numba.njit(cache=True, nogil=True)
-def _implicit_surface(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
-                      order: np.ndarray, normals: np.ndarray, usable: np.ndarray,
-                      offset: np.ndarray, queries: np.ndarray, h: float, radius: float,
-                      k: int, min_neighbours: int) -> tuple:
+def implicit_surface_kernel(sorted_points: np.ndarray, bearings: np.ndarray,
+                            directions: np.ndarray, order: np.ndarray, normals: np.ndarray,
+                            usable: np.ndarray, offset: np.ndarray, queries: np.ndarray,
+                            h: float, radius: float, k: int, min_neighbours: int) -> tuple:
     """Compiled kernel of :func:`implicit_surface` (padded model arrays, sorted index)."""
     m = queries.shape[0]
     n = order.shape[0]
@@ -198,6 +198,7 @@ def project_onto_surface(queries: np.ndarray, values: np.ndarray,
     return queries - values[:, None] * normals
 
 
+@numba.njit(cache=True, nogil=True)
 def planarity(curvature: np.ndarray) -> np.ndarray:
     """Return the 2D planarity ``a_2D = 1 - sqrt(l1 / l2)`` from the curvature.
 
@@ -206,7 +207,7 @@ def planarity(curvature: np.ndarray) -> np.ndarray:
     ``a_2D = (sigma_2 - sigma_3) / sigma_1`` with ``sigma = sqrt(lambda)``: 1 on a
     straight line, 0 on an isotropic blob.
     """
-    c = np.clip(curvature, 0.0, 0.5)
+    c = np.minimum(np.maximum(curvature, 0.0), 0.5)
     return 1.0 - np.sqrt(c / np.maximum(1.0 - c, 1e-12))
 
 

@@ -8,20 +8,26 @@ estimate; Bengtsson & Baerveldt 2003, Censi 2007 for its ICP use).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 MIN_RESIDUAL_SIGMA = 0.005
 """Floor on the residual standard deviation [m]: a noise-free fit is not infinitely certain."""
 
 
+@numba.njit(cache=True, nogil=True)
 def point_to_line_jacobians(rotated_points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Jacobians (N, 3) of ``n . (R p + t - q)`` with respect to ``[x, y, theta]``.
 
     ``rotated_points`` are ``R p`` (already rotated by the current estimate);
     d(R p)/d theta = [-(Rp)_y, (Rp)_x].
     """
-    dtheta = normals[:, 1] * rotated_points[:, 0] - normals[:, 0] * rotated_points[:, 1]
-    return np.column_stack((normals[:, 0], normals[:, 1], dtheta))
+    jacobians = np.empty((rotated_points.shape[0], 3))
+    for i in range(rotated_points.shape[0]):
+        nx, ny = normals[i, 0], normals[i, 1]
+        jacobians[i, 0], jacobians[i, 1] = nx, ny
+        jacobians[i, 2] = ny * rotated_points[i, 0] - nx * rotated_points[i, 1]
+    return jacobians
 
 
 def point_to_point_jacobians(rotated_points: np.ndarray) -> np.ndarray:
