@@ -89,10 +89,19 @@ def relative_pose(a: Pose, b: Pose) -> Pose:
 
 def transform_points(p: Pose, points: np.ndarray) -> np.ndarray:
     """Apply a pose to an (N, 2) array of points: ``R p_i + t``."""
+    return move_points(np.asarray(p, dtype=float),
+                       np.asarray(points, dtype=float).reshape(-1, 2))
+
+
+@numba.njit(cache=True, nogil=True)
+def move_points(p: Pose, points: np.ndarray) -> np.ndarray:
+    """Compiled :func:`transform_points` of float arrays (for kernels and the wrapper)."""
     c, s = math.cos(p[2]), math.sin(p[2])
-    out = np.empty_like(points, dtype=float)
-    out[:, 0] = c * points[:, 0] - s * points[:, 1] + p[0]
-    out[:, 1] = s * points[:, 0] + c * points[:, 1] + p[1]
+    out = np.empty((points.shape[0], 2))
+    for i in range(points.shape[0]):
+        x, y = points[i, 0], points[i, 1]
+        out[i, 0] = c * x - s * y + p[0]
+        out[i, 1] = s * x + c * y + p[1]
     return out
 
 

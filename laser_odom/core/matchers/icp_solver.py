@@ -18,7 +18,7 @@ import numpy as np
 
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
 from laser_odom.core.nearest import nearest_by_bearing
-from laser_odom.core.se2 import relative_pose, wrap_angle
+from laser_odom.core.se2 import move_points, relative_pose, wrap_angle
 
 ACCELERATION_COSINE = math.cos(math.radians(10.0))
 """Successive steps closer than 10 deg in direction count as one consistent creep."""
@@ -80,14 +80,10 @@ def iterate(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndar
     previous_step = np.zeros(3)
     has_previous = False
     hints = np.full(points.shape[0], -1, dtype=np.int64)
-    moved = np.empty_like(points)
     for iteration in range(1, max_iterations + 1):
-        c, s = math.cos(estimate[2]), math.sin(estimate[2])
-        for i in range(points.shape[0]):
-            moved[i, 0] = c * points[i, 0] - s * points[i, 1] + estimate[0]
-            moved[i, 1] = s * points[i, 0] + c * points[i, 1] + estimate[1]
         distance, nearest = nearest_by_bearing(sorted_points, bearings, directions, order,
-                                               moved, max_distance, hints)
+                                               move_points(estimate, points), max_distance,
+                                               hints)
         found = np.flatnonzero(nearest < order.shape[0])
         if found.shape[0] < min_correspondences:
             return False, estimate, iteration, False

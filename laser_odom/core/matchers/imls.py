@@ -56,7 +56,7 @@ from laser_odom.core.matchers.information import (
     residual_variance)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import (
-    adaptive_keep_fraction, kernel_code, KERNELS, robust_weights, trimmed_mask)
+    inlier_mask, kernel_code, KERNELS, robust_weights)
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
@@ -182,16 +182,9 @@ class ImlsMatcher(ScanMatcher):
                                 cfg.max_neighbours, cfg.min_neighbours)
 
     def _inliers(self, residuals: np.ndarray) -> np.ndarray:
-        """Return the residuals within ``outlier_sigmas`` robust standard deviations.
-
-        Adaptive trimming (:func:`adaptive_keep_fraction`, sigma = 1.4826 MAD), keeping
-        at least ``min_keep_fraction``: in a corridor a single passer-by's legs would
-        otherwise drag the weakly constrained axis.
-        """
-        cfg = self.config
-        keep = adaptive_keep_fraction(residuals, cfg.min_keep_fraction, 1.0,
-                                      cfg.outlier_sigmas)
-        return trimmed_mask(residuals, keep)
+        """Return the residuals within ``outlier_sigmas`` robust standard deviations."""
+        return inlier_mask(np.asarray(residuals, dtype=float), self.config.min_keep_fraction,
+                           self.config.outlier_sigmas)
 
     def _rotation_search(self, reference: ScanPoints, points: np.ndarray,
                          guess: se2.Pose, search_angle: float) -> se2.Pose:

@@ -13,11 +13,12 @@ import numba
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.matchers.imls_surface import implicit_surface_kernel, planarity
+from laser_odom.core.matchers.imls_surface import (
+    implicit_surface_kernel, planarity, project_onto_surface)
 from laser_odom.core.matchers.information import (
     covariance_from_information, point_to_line_jacobians)
-from laser_odom.core.matchers.robust import adaptive_keep_fraction, kernel_weights, trimmed_mask
-from laser_odom.core.se2 import wrap_angle
+from laser_odom.core.matchers.robust import inlier_mask, kernel_weights
+from laser_odom.core.se2 import move_points, wrap_angle
 
 EIGEN_FLOOR = 1e-9
 """Relative eigenvalue below which a Gauss-Newton direction is left unchanged."""
@@ -149,21 +150,17 @@ def refine(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarr
     while iterations < max_iterations:
         iterations += 1
         if iterations > 1 or not far:
-            c, s = math.cos(estimate[2]), math.sin(estimate[2])
-            moved = np.empty_like(chosen)
-            moved[:, 0] = c * chosen[:, 0] - s * chosen[:, 1] + estimate[0]
-            moved[:, 1] = s * chosen[:, 0] + c * chosen[:, 1] + estimate[1]
             value, normal, defined, _, mean, nearest = implicit_surface_kernel(
-                sorted_points, bearings, directions, order, normals, usable, offset, moved,
+                sorted_points, bearings, directions, order, normals, usable, offset,
+                move_points(estimate, chosen),
                 h, approach_radius if approach else radius, k, max(min_neighbours, 1))
         ok = defined
         if not approach and not gated:
             # Entering the refinement: fix the inlier set once (close to the solution,
             # so that only true outliers stand out), so the iterations do not cycle.
-            values = value[ok]
             inlier = np.zeros(ok.shape[0], dtype=np.bool_)
-            inlier[np.flatnonzero(ok)] = trimmed_mask(values, adaptive_keep_fraction(
-                values, min_keep_fraction, 1.0, outlier_sigmas))
+            inlier[np.flatnonzero(ok)] = inlier_mask(value[ok], min_keep_fraction,
+                                                     outlier_sigmas)
             chosen, value, normal = chosen[inlier], value[inlier], normal[inlier]
             mean, nearest, ok = mean[inlier], nearest[inlier], ok[inlier]
             gated, previous_step, gain = True, np.zeros(3), 1.0
@@ -171,14 +168,8 @@ def refine(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarr
         if picked.shape[0] < min_correspondences:
             break
         along = normal[picked] if nearest_normal else mean[picked]
-        c, s = math.cos(estimate[2]), math.sin(estimate[2])
         points = chosen[picked]
-        targets = np.empty_like(points)
-        for m in range(points.shape[0]):  # projected onto the surface: x - I(x) n
-            x = c * points[m, 0] - s * points[m, 1] + estimate[0]
-            y = s * points[m, 0] + c * points[m, 1] + estimate[1]
-            targets[m, 0] = x - value[picked[m]] * along[m, 0]
-            targets[m, 1] = y - value[picked[m]] * along[m, 1]
+        targets = project_onto_surface(move_points(estimate, points), value[picked], along)
         residuals, jacobians = point_to_plane_system(estimate, points, along, targets)
         weights = np.ones(residuals.shape[0]) if approach else kernel_weights(
             residuals, kernel, kernel_scale)

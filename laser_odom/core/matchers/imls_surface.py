@@ -188,6 +188,7 @@ def implicit_surface_kernel(sorted_points: np.ndarray, bearings: np.ndarray,
     return value, normal, defined, count, mean, nearest
 
 
+@numba.njit(cache=True, nogil=True)
 def project_onto_surface(queries: np.ndarray, values: np.ndarray,
                          normals: np.ndarray) -> np.ndarray:
     """Project queries onto the IMLS surface: ``y = x - I(x) n`` (IMLS-SLAM section III-C).
@@ -195,7 +196,7 @@ def project_onto_surface(queries: np.ndarray, values: np.ndarray,
     ``values`` are I(x) and ``normals`` the unit normals to project along (Deschaud
     takes the normal of the nearest reference point, :attr:`SurfaceSample.normal`).
     """
-    return queries - values[:, None] * normals
+    return queries - values.reshape(-1, 1) * normals
 
 
 @numba.njit(cache=True, nogil=True)

@@ -21,6 +21,7 @@ import numpy as np
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
 from laser_odom.core.nearest import BearingIndex, nearest_by_bearing
 from laser_odom.core.scan import ScanPoints
+from laser_odom.core.se2 import move_points
 
 
 @dataclass
@@ -246,12 +247,7 @@ def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.nda
     (``a = (n_x, n_y, n . p, n x p)``, :func:`.plicp_solver.solve_normal_equations`),
     and a hash of the pairing (equal pairings give equal steps: a repeat is a cycle).
     """
-    c, s = math.cos(estimate[2]), math.sin(estimate[2])
-    moved = np.empty_like(points)
-    for i in range(points.shape[0]):
-        x, y = points[i, 0], points[i, 1]
-        moved[i, 0] = c * x - s * y + estimate[0]
-        moved[i, 1] = s * x + c * y + estimate[1]
+    moved = move_points(estimate, points)
     paired, segment_id, line = _pair(table, sorted_points, bearings, directions, order,
                                      moved, max_distance, hints)
     count = paired.shape[0]

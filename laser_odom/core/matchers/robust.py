@@ -75,6 +75,18 @@ def trimmed_mask(residuals: np.ndarray, keep_fraction: float) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
+def inlier_mask(residuals: np.ndarray, min_fraction: float, sigmas: float) -> np.ndarray:
+    """Keep the residuals within ``sigmas`` robust standard deviations, at least a share.
+
+    Adaptive trimming (:func:`adaptive_keep_fraction`, sigma = 1.4826 MAD, up to all of
+    them), keeping at least ``min_fraction``: in a corridor a single passer-by's legs
+    would otherwise drag the weakly constrained axis.
+    """
+    return trimmed_mask(residuals, adaptive_keep_fraction(residuals, min_fraction, 1.0,
+                                                          sigmas))
+
+
+@numba.njit(cache=True, nogil=True)
 def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
                            max_fraction: float, sigma_multiplier: float = 3.0) -> float:
     """Choose how many pairs to keep from the residual distribution itself.
