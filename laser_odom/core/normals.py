@@ -54,8 +54,6 @@ def estimate_normals(scan: ScanPoints, neighbours: int = 10, radius: float = 0.3
     averages out); where it is sparse, on the few nearest ones (a wide neighbourhood
     would span corners and discontinuities).
     """
-    # Imported here: the matchers package imports this module (ICP's information).
-    from laser_odom.core.matchers.correspondences import k_nearest
     origin = np.zeros(2) if sensor_origin is None else np.asarray(sensor_origin, float)
     key = ('normals', neighbours, radius, min_neighbours, tuple(origin), extent)
     cached = scan.cache.get(key)
@@ -65,13 +63,32 @@ def estimate_normals(scan: ScanPoints, neighbours: int = 10, radius: float = 0.3
         result = normals_from_neighbours(scan, np.zeros((0, 1)), np.zeros((0, 1), dtype=int),
                                          min_neighbours, origin)
     else:
-        distance, index = k_nearest(scan.bearing_index, scan.points, neighbours, radius)
+        distance, index = neighbourhoods(scan, neighbours, radius)
         if extent is not None:
+            distance = distance.copy()  # the neighbourhoods are shared through the cache
             far = distance[:, min_neighbours:]
             far[far > extent] = np.inf
         result = normals_from_neighbours(scan, distance, index, min_neighbours, origin)
     scan.cache[key] = result
     return result
+
+
+def neighbourhoods(scan: ScanPoints, neighbours: int,
+                   radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return the ``neighbours`` nearest points within ``radius`` of every scan point.
+
+    Distances and indices (N, k), nearest first, as :meth:`BearingIndex.k_nearest`
+    gives them; cached per scan and radius, so estimates of several neighbourhood
+    sizes (a matcher's normals and the smoother ones behind its information) share one
+    search: the k nearest are the first k columns of a larger query. A caller that
+    will want several sizes asks for the largest first.
+    """
+    key = ('neighbourhoods', float(radius))
+    cached = scan.cache.get(key)
+    if cached is None or cached[0].shape[1] < neighbours:
+        cached = scan.bearing_index.k_nearest(scan.points, neighbours, radius)
+        scan.cache[key] = cached
+    return cached[0][:, :neighbours], cached[1][:, :neighbours]
 
 
 def normals_from_neighbours(scan: ScanPoints, distance: np.ndarray, index: np.ndarray,

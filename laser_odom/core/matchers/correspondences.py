@@ -48,13 +48,3 @@ def nearest_neighbours(index: BearingIndex, points: np.ndarray,
     found = np.isfinite(distance)
     current = np.flatnonzero(found)
     return Correspondences(current, index[found], distance[found])
-
-
-def k_nearest(index: BearingIndex, points: np.ndarray, k: int,
-              max_distance: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-    """Return distances and indices (N, k) of the k nearest indexed points.
-
-    Missing neighbours (beyond ``max_distance`` or fewer than k points) have
-    distance ``inf`` and index ``index.n``.
-    """
-    return index.k_nearest(points, k, max_distance)

@@ -57,7 +57,7 @@ from laser_odom.core.matchers.information import (
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import (
     inlier_mask, kernel_code, KERNELS, robust_weights)
-from laser_odom.core.normals import estimate_normals
+from laser_odom.core.normals import estimate_normals, neighbourhoods
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
 
@@ -170,6 +170,9 @@ class ImlsMatcher(ScanMatcher):
     def _model(self, scan: ScanPoints) -> SurfaceModel:
         """Return the cached surface model of a scan under this configuration."""
         cfg = self.config
+        # Both normal estimates (matching, information) share one neighbourhood search.
+        neighbourhoods(scan, max(cfg.normal_neighbours, cfg.information_neighbours),
+                       cfg.normal_radius)
         return surface_model(scan, cfg.normal_neighbours, cfg.normal_radius,
                              cfg.normal_min_neighbours,
                              cfg.normal_extent if cfg.normal_extent > 0.0 else None)

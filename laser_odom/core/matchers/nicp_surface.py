@@ -14,8 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from laser_odom.core.matchers.correspondences import k_nearest
-from laser_odom.core.normals import normals_from_neighbours, SurfaceNormals
+from laser_odom.core.normals import neighbourhoods, normals_from_neighbours, SurfaceNormals
 from laser_odom.core.scan import ScanPoints
 
 
@@ -144,8 +143,8 @@ def _neighbourhoods(scan: ScanPoints,
                                         settings.min_neighbours)
         return empty, empty
     k = max(settings.neighbours, settings.information_neighbours)
-    distance, index = k_nearest(scan.bearing_index, scan.points, k,
-                                max(settings.radius, settings.information_radius))
+    distance, index = neighbourhoods(scan, k, max(settings.radius,
+                                                  settings.information_radius))
     near = distance[:, :settings.neighbours].copy()
     near[near > settings.radius] = np.inf
     if settings.extent > 0.0:
