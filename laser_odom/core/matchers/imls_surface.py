@@ -36,12 +36,11 @@ from laser_odom.core.scan import ScanPoints
 class SurfaceModel:
     """A scan's points and normals, padded for masked neighbour lookups.
 
-    Row ``n`` of ``points`` and ``normals`` is a zero pad that missing neighbour
-    neighbours (index ``tree.n``) point to; ``usable[n]`` is False, as is ``usable``
-    of every point without a well-defined normal. Derived once: ``offset`` is
-    ``p_i . n_i`` (the tangent-line distance is ``x . n_i - offset_i``), ``normal_x``
-    and ``normal_y`` the normal components, ``curvature`` padded with 0.5 (no
-    planarity).
+    Row ``n`` of ``points`` and ``normals`` is a zero pad that missing neighbours
+    (index ``index.n``) point to; ``usable[n]`` is False, as is ``usable`` of every
+    point without a well-defined normal. Derived once: ``offset`` is ``p_i . n_i`` (the
+    tangent-line distance is ``x . n_i - offset_i``); ``curvature`` is padded with 0.5
+    (no planarity).
     """
 
     index: BearingIndex
@@ -50,14 +49,10 @@ class SurfaceModel:
     usable: np.ndarray
     curvature: np.ndarray
     offset: np.ndarray = field(init=False)
-    normal_x: np.ndarray = field(init=False)
-    normal_y: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
-        """Precompute the tangent-line offsets and contiguous normal components."""
+        """Precompute the tangent-line offsets."""
         self.offset = np.einsum('nd,nd->n', self.points, self.normals)
-        self.normal_x = np.ascontiguousarray(self.normals[:, 0])
-        self.normal_y = np.ascontiguousarray(self.normals[:, 1])
 
 
 @dataclass

@@ -32,6 +32,7 @@ from laser_odom.core.degeneracy import degenerate_directions
 from laser_odom.core.matchers.nicp_surface import NicpSurface
 from laser_odom.core.matchers.robust import kernel_weights
 from laser_odom.core.nearest import BearingIndex, nearest_by_bearing
+from laser_odom.core.se2 import move_points
 
 
 RULES = ('normal', 'distance', 'angle', 'curvature')
@@ -234,18 +235,10 @@ def linearise(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.nd
     the terms behind the reported information (rotated points and normals, errors,
     reference indices, weights of the pairs).
     """
-    c, s = math.cos(estimate[2]), math.sin(estimate[2])
+    turn = np.array([0.0, 0.0, estimate[2]])
+    rotated, rotated_normals = move_points(turn, points), move_points(turn, normals)
+    moved = move_points(estimate, points)
     count = points.shape[0]
-    rotated = np.empty((count, 2))
-    rotated_normals = np.empty((count, 2))
-    moved = np.empty((count, 2))
-    for i in range(count):
-        rotated[i, 0] = c * points[i, 0] - s * points[i, 1]
-        rotated[i, 1] = s * points[i, 0] + c * points[i, 1]
-        rotated_normals[i, 0] = c * normals[i, 0] - s * normals[i, 1]
-        rotated_normals[i, 1] = s * normals[i, 0] + c * normals[i, 1]
-        moved[i, 0] = rotated[i, 0] + estimate[0]
-        moved[i, 1] = rotated[i, 1] + estimate[1]
     pick, ref_index = _associate(sorted_points, bearings, directions, order, ref_normals,
                                  ref_log_curvature, ref_usable, moved, rotated_normals,
                                  log_curvature, np.ones(count, dtype=np.bool_),

@@ -61,7 +61,6 @@ class NicpSurface:
     points_usable: np.ndarray
     normals_usable: np.ndarray
     log_curvature_usable: np.ndarray
-    usable_ones: np.ndarray
     orientation_histogram: np.ndarray
 
 
@@ -203,8 +202,7 @@ def nicp_surface(scan: ScanPoints, settings: SurfaceSettings) -> NicpSurface:
         usable=usable, info_point=info_point, info_report=info_report,
         info_normal=info_normal, index=index,
         points_usable=points[index], normals_usable=est.normals[index],
-        log_curvature_usable=log_curvature[index], usable_ones=np.ones(index.size, bool),
-        orientation_histogram=histogram)
+        log_curvature_usable=log_curvature[index], orientation_histogram=histogram)
     scan.cache[key] = surface
     return surface
 

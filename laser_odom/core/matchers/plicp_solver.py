@@ -144,7 +144,8 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
     """
     estimate = guess.copy()
     hints = np.full(points.shape[0], -1, dtype=np.int64)  # nearest of the last iteration
-    seen = np.zeros(max_iterations, dtype=np.uint64)
+    seen = np.zeros(max_iterations, dtype=np.uint64)  # pairings of the fine phase
+    seen_count = 0
     coarse = coarse_keep_fraction > 0.0
     converged = False
     kept = np.zeros(0, dtype=np.int64)
@@ -170,11 +171,12 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
             coarse = moved_by >= coarse_step or abs(step[2]) >= coarse_step
             continue
         repeated = False
-        for previous in seen[:iterations - 1]:
+        for previous in seen[:seen_count]:
             repeated = repeated or previous == signature
         if (moved_by < convergence_translation and abs(step[2]) < convergence_rotation) \
                 or repeated:
             converged = True
             break
-        seen[iterations - 1] = signature
+        seen[seen_count] = signature
+        seen_count += 1
     return True, estimate, converged, iterations, kept, moved, line, segment, delta
