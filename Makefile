@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 OUT ?= out
 DEMO_DOMAIN ?= 42
 
-.PHONY: all venv test lint demo bench soak docs clean
+.PHONY: all venv test lint demo bench soak docs clean clean-kernels
 
 all: test
 
@@ -50,5 +50,10 @@ docs: $(STAMP)
 	$(BIN)/python -m laser_odom.ros.default_params > config/default.yaml
 	$(BIN)/python -m laser_odom.ros.default_params --readme README.md
 
-clean:
+clean: clean-kernels
 	rm -rf $(VENV) $(OUT) build install log *.egg-info
+
+# numba keys each cached kernel by its own file's time stamp only: after editing one
+# module, kernels elsewhere that call into it keep the old code until this runs.
+clean-kernels:
+	find laser_odom -name '*.nbi' -delete -o -name '*.nbc' -delete

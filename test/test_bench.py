@@ -6,9 +6,12 @@ Progress only on a terminal; ``--quiet`` silences warnings but not errors.
 import io
 import json
 import logging
+import math
+import os
 from pathlib import Path
 import subprocess
 import sys
+import time
 import warnings
 
 import numpy as np
@@ -150,14 +153,29 @@ def test_warnings_silenced_restores_logging_and_warnings():
 
 def test_live_table_says_busy_and_dropped_in_the_diagnostics_wording():
     from laser_odom.tools.bench_live import format_live, LiveRow
-    row = LiveRow('nicp', 2400, 1800, 600, 9.1, 20.2, 11.0, 25.0, busy=590, dropped=10)
+    row = LiveRow('nicp', 2400, 1800, 600, 9.1, 20.2, 11.0, 25.0, busy=590, dropped=10,
+                  cpu_percent=17.25, ready_s=1.5, first_ms=40.0)
     header, values = format_live([row], 1081, 40.0, 60.0).splitlines()[1:3]
     assert header.split()[:7] == ['matcher', 'sent', 'processed', 'no', 'answer', 'busy',
                                   'dropped']
+    assert header.split()[-6:] == ['CPU', '%', 'ready', 's', 'first', 'ms']
     assert values.split()[:6] == ['nicp', '2400', '1800', '600', '590', '10']
+    assert values.split()[-3:] == ['17.2', '1.50', '40.0']
     legend = format_live([row], 1081, 40.0, 60.0)
     assert 'busy: scans not processed because the node was busy' in legend
     assert 'dropped: scans dropped before reaching the node' in legend
+
+
+@pytest.mark.skipif(not Path('/proc/self/stat').exists(), reason='needs Linux /proc')
+def test_live_bench_reads_the_cpu_time_a_process_used():
+    from laser_odom.tools.bench_live import process_cpu_seconds
+    before = process_cpu_seconds(os.getpid())
+    end = time.process_time() + 0.3
+    while time.process_time() < end:
+        pass
+    used = process_cpu_seconds(os.getpid()) - before
+    assert 0.2 <= used <= 5.0, used
+    assert math.isnan(process_cpu_seconds(2 ** 22 + 12345))  # above Linux's pid_max
 
 
 def test_grid_is_left_out_by_default_and_selected_by_name():

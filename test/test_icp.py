@@ -7,7 +7,7 @@ import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.matchers import create_matcher
-from laser_odom.core.matchers.icp_solver import align_svd
+from laser_odom.core.matchers.icp_solver import align_pairs
 from laser_odom.core.scan import densify, scan_to_points, ScanPoints
 from laser_odom.core.simulation import get_world, LaserModel, render_scan
 
@@ -27,15 +27,36 @@ def test_svd_step_is_exact_on_exact_pairs():
     rng = np.random.default_rng(3)
     source = rng.normal(size=(40, 2))
     truth = se2.pose(0.4, -1.2, 2.5)
-    got = align_svd(source, se2.transform_points(truth, source), np.ones(len(source)))
+    got = align_pairs(source, se2.transform_points(truth, source), np.ones(len(source)))
     assert np.allclose(got, truth, atol=1e-12)
+
+
+def arun_svd(source, target, weights):
+    """Arun, Huang & Blostein's alignment with an explicit SVD, as the paper writes it."""
+    mu_s = weights @ source / weights.sum()
+    mu_t = weights @ target / weights.sum()
+    cross = ((source - mu_s) * weights[:, None]).T @ (target - mu_t)
+    u, _, vt = np.linalg.svd(cross)
+    rot = vt.T @ np.diag([1.0, np.linalg.det(vt.T @ u.T)]) @ u.T
+    return np.array([*(mu_t - rot @ mu_s), math.atan2(rot[1, 0], rot[0, 0])])
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_closed_form_step_equals_the_svd_solution(seed):
+    rng = np.random.default_rng(seed)
+    source = rng.normal(size=(30, 2))
+    target = rng.normal(size=(30, 2)) + se2.transform_points(
+        se2.pose(*rng.normal(size=3)), source)  # noisy pairs: the optimum is not exact
+    weights = rng.uniform(0.1, 2.0, size=30)
+    assert np.allclose(align_pairs(source, target, weights), arun_svd(source, target, weights),
+                       atol=1e-12)
 
 
 def test_svd_step_handles_the_reflection_case():
     # Collinear, mirrored points make the unconstrained SVD solution a reflection.
     source = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.1]])
     target = source * np.array([1.0, -1.0])
-    got = align_svd(source, target, np.ones(len(source)))
+    got = align_pairs(source, target, np.ones(len(source)))
     rot = se2.rotation(got[2])
     assert math.isclose(np.linalg.det(rot), 1.0)
 

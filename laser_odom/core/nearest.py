@@ -88,6 +88,18 @@ def _sort_by_bearing(points: np.ndarray
     return order, bearings[order], sorted_points, directions
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _bearing_bound(directions: np.ndarray, j: int, qx: float, qy: float,
+                   radius: float) -> float:
+    """Lower bound on the distance from query ``q`` to sorted point ``j`` (its direction).
+
+    ``|q x u|`` (the distance from q to the ray along ``u``) within 90 deg of the query's
+    bearing, else ``|q|`` (``radius``).
+    """
+    ux, uy = directions[j, 0], directions[j, 1]
+    return abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
+
+
 @numba.njit(cache=True, nogil=True)
 def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.ndarray,
                          order: np.ndarray, queries: np.ndarray, k: int, max_distance: float
@@ -124,21 +136,19 @@ def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: n
         # that the k-th distance (the reach) shrinks as early as it can.
         reach = math.sqrt(limit2)
         right, left = start, start - 1
+        bound_right = _bearing_bound(directions, right % n, qx, qy, radius)
+        bound_left = _bearing_bound(directions, left % n, qx, qy, radius)
         for _ in range(n):
-            j_right = right - n if right >= n else right
-            j_left = left + n if left < 0 else left
-            ux, uy = directions[j_right, 0], directions[j_right, 1]
-            bound_right = abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
-            ux, uy = directions[j_left, 0], directions[j_left, 1]
-            bound_left = abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
             if min(bound_right, bound_left) > reach:
                 break
             if bound_right <= bound_left:
-                j = j_right
+                j = right % n
                 right += 1
+                bound_right = _bearing_bound(directions, right % n, qx, qy, radius)
             else:
-                j = j_left
+                j = left % n
                 left -= 1
+                bound_left = _bearing_bound(directions, left % n, qx, qy, radius)
             dx, dy = points[j, 0] - qx, points[j, 1] - qy
             d2 = dx * dx + dy * dy
             if d2 <= best2[k - 1]:
@@ -212,9 +222,7 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
                     j -= n
                 elif j < 0:
                     j += n
-                ux, uy = directions[j, 0], directions[j, 1]
-                bound = abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
-                if bound > reach:
+                if _bearing_bound(directions, j, qx, qy, radius) > reach:
                     break
                 dx, dy = points[j, 0] - qx, points[j, 1] - qy
                 d2 = dx * dx + dy * dy

@@ -7,8 +7,12 @@ answers. The table says how many scans the node processed, how many got no answe
 and of those, from the node's diagnostics, how many were not processed because the
 node was busy (it never queues: a scan arriving while it matches replaces the waiting
 one) and how many were dropped before reaching the node (lost on the way); then the
-receipt-to-publish latency the node measured, and the end-to-end latency seen by the
-publisher (scan sent -> odometry received, DDS included).
+receipt-to-publish latency the node measured, the end-to-end latency seen by the
+publisher (scan sent -> odometry received, DDS included), and what the node costs:
+its CPU time over the stream as a share of one core (from /proc, all its threads:
+DDS, diagnostics and the matcher), the seconds from starting its process to being
+ready (subscribed and publishing, after loading or compiling its kernels), and the
+end-to-end latency of the first scan it gets.
 """
 
 from __future__ import annotations
@@ -65,6 +69,19 @@ class LiveRow:
     e2e_p95_ms: float
     busy: int = 0
     dropped: int = 0
+    cpu_percent: float = math.nan
+    ready_s: float = math.nan
+    first_ms: float = math.nan
+
+
+def process_cpu_seconds(pid: int) -> float:
+    """Return the user + system CPU seconds a process has used (Linux /proc), else nan."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except (OSError, IndexError):
+        return math.nan
+    # After the command name: state is field 3, utime and stime are fields 14 and 15.
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 class LiveSession:
@@ -76,6 +93,7 @@ class LiveSession:
         root = str(Path(__file__).resolve().parents[2])
         env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH', '')) if p)
         self.log = tempfile.TemporaryFile('w+')
+        self.started = time.monotonic()
         self.process = subprocess.Popen(
             [sys.executable, '-m', 'laser_odom.ros.node', '--ros-args', '-p',
              f'matcher:={matcher}', '-p', 'publish_tf:=false'],
@@ -130,6 +148,7 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
                                   STARTUP_TIMEOUT):
             session.log.seek(0)
             raise RuntimeError(f'{matcher}: node did not start: {session.log.read()[-500:]}')
+        ready_s = time.monotonic() - session.started
         sent: dict[int, float] = {}
         spinner = threading.Thread(target=session.spin_until,
                                    args=(lambda: False, len(messages) / rate + 3.0))
@@ -139,9 +158,13 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
             sent[stamp] = time.monotonic()
             session.publisher.publish(msg)
 
+        cpu_start, wall_start = process_cpu_seconds(session.process.pid), time.monotonic()
         play((index / rate, partial(send, stamp, msg))
              for index, (stamp, msg) in enumerate(messages))
         spinner.join()
+        cpu_percent = 100.0 * ((process_cpu_seconds(session.process.pid) - cpu_start)
+                               / (time.monotonic() - wall_start))
+        first = messages[0][0]
         latencies = np.array([session.received[s] - sent[s] for s in sent
                               if s in session.received])
         diag = session.diagnostics
@@ -151,7 +174,9 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
             float(diag.get('latency p95 [ms]', 'nan').replace('n/a', 'nan')),
             float(np.median(latencies) * 1e3) if len(latencies) else math.nan,
             float(np.percentile(latencies, 95) * 1e3) if len(latencies) else math.nan,
-            int(diag.get(BUSY_KEY, '0')), int(diag.get(DROPPED_KEY, '0')))
+            int(diag.get(BUSY_KEY, '0')), int(diag.get(DROPPED_KEY, '0')), cpu_percent,
+            ready_s, (session.received[first] - sent[first]) * 1e3
+            if first in session.received else math.nan)
     finally:
         session.close()
 
@@ -171,14 +196,18 @@ def format_live(rows: Sequence[LiveRow], beams: int, rate: float, duration: floa
              'fresh laser_odom_node per matcher',
              f'{"matcher":<8} {"sent":>6} {"processed":>9} {"no answer":>9} {"busy":>6} '
              f'{"dropped":>7} {"node med ms":>11} {"node p95 ms":>11} {"e2e med ms":>10} '
-             f'{"e2e p95 ms":>10}']
+             f'{"e2e p95 ms":>10} {"CPU %":>6} {"ready s":>7} {"first ms":>8}']
     for r in rows:
         lines.append(f'{r.matcher:<8} {r.sent:>6} {r.processed:>9} {r.skipped:>9} '
                      f'{r.busy:>6} {r.dropped:>7} '
                      f'{r.node_median_ms:>11.2f} {r.node_p95_ms:>11.2f} '
-                     f'{r.e2e_median_ms:>10.2f} {r.e2e_p95_ms:>10.2f}')
+                     f'{r.e2e_median_ms:>10.2f} {r.e2e_p95_ms:>10.2f} '
+                     f'{r.cpu_percent:>6.1f} {r.ready_s:>7.2f} {r.first_ms:>8.1f}')
     lines.append(f'# busy: {BUSY_KEY}; dropped: {DROPPED_KEY} (both from its '
                  '/diagnostics)')
     lines.append('# node: receipt -> publish inside the node (its /diagnostics); e2e: '
                  'publish of the scan -> receipt of its odometry by the publisher')
+    lines.append('# CPU %: the node process over the stream, 100 = one core; ready s: '
+                 'process start -> subscribed and publishing; first ms: e2e of the first '
+                 'scan')
     return '\n'.join(lines)

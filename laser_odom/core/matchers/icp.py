@@ -28,6 +28,11 @@ from laser_odom.core.params import param, retune
 from laser_odom.core.scan import densify, ScanPoints
 
 
+COARSE_TOLERANCE = 10.0
+"""The beam-sample phase stops at 10x the convergence thresholds: its optimum is biased
+by the beam sampling by more than that, and the dense phase refines it anyway."""
+
+
 @dataclass
 class IcpConfig(MatcherConfig):
     """Point-to-point ICP settings (defaults tuned on the benchmark datasets)."""
@@ -70,11 +75,12 @@ class IcpMatcher(ScanMatcher):
         # ``max_iterations`` caps each of the two phases.
         iterations = 0
         converged = False
-        phases = (lambda: (reference.points, reference.bearing_index),
-                  lambda: self._dense_reference(reference))
-        for phase in phases:
+        phases = ((lambda: (reference.points, reference.bearing_index), COARSE_TOLERANCE),
+                  (lambda: self._dense_reference(reference), 1.0))
+        for phase, tolerance in phases:
             target, tree = phase()
-            estimate, used, converged = self._iterate(target, tree, current, estimate)
+            estimate, used, converged = self._iterate(target, tree, current, estimate,
+                                                      tolerance)
             iterations += used
             if estimate is None:
                 return MatchResult.failure(initial_guess, iterations, reason='too few pairs')
@@ -103,7 +109,7 @@ class IcpMatcher(ScanMatcher):
         return reference.cache[key]
 
     def _iterate(self, target: np.ndarray, index: BearingIndex, current: ScanPoints,
-                 estimate: se2.Pose) -> tuple[se2.Pose | None, int, bool]:
+                 estimate: se2.Pose, tolerance: float) -> tuple[se2.Pose | None, int, bool]:
         """Run up to ``max_iterations`` ICP iterations against ``target``.
 
         Returns the estimate (None if pairs ran out), the iterations used and whether
@@ -115,7 +121,8 @@ class IcpMatcher(ScanMatcher):
             np.ascontiguousarray(target, dtype=float), current.points,
             np.asarray(estimate, dtype=float), cfg.max_iterations, cfg.min_correspondences,
             cfg.max_correspondence_distance, cfg.min_keep_fraction, cfg.max_keep_fraction,
-            cfg.convergence_translation, cfg.convergence_rotation, current.length_scale)
+            tolerance * cfg.convergence_translation, tolerance * cfg.convergence_rotation,
+            current.length_scale)
         return (estimate if paired else None), int(iterations), bool(converged)
 
 

@@ -4,7 +4,8 @@ Besl & McKay, "A method for registration of 3-D shapes", PAMI 1992: pair every p
 with its nearest reference point (gated, trimmed), align the pairs in closed form
 (Arun, Huang & Blostein, PAMI 1987: centre both sets, take the SVD of their
 cross-covariance ``H = U S V^T``, ``R = V diag(1, det(V U^T)) U^T`` - the diagonal
-fixes the reflection case - and ``t = mu_q - R mu_p``), repeat. Point-to-point ICP
+fixes the reflection case - and ``t = mu_q - R mu_p``; in 2D that rotation has a
+closed form, see :func:`align_pairs`), repeat. Point-to-point ICP
 converges linearly, creeping along walls; two aligned, shrinking steps are
 extrapolated to the end of their geometric tail (Besl & McKay, Sec. IV-C).
 """
@@ -25,21 +26,30 @@ ACCELERATION_COSINE = math.cos(math.radians(10.0))
 
 
 @numba.njit(cache=True, nogil=True)
-def align_svd(source: np.ndarray, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Return the rigid pose minimising ``sum w_i |R s_i + t - q_i|^2`` (Arun et al.)."""
+def align_pairs(source: np.ndarray, target: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Return the rigid pose minimising ``sum w_i |R s_i + t - q_i|^2`` (Arun et al.).
+
+    Arun's solution takes the SVD of the weighted cross-covariance of the centred sets,
+    ``H = sum w_i s_i q_i^T = U S V^T``, and ``R = V diag(1, det(V U^T)) U^T``: the
+    rotation that maximises ``tr(R H)`` (Umeyama 1991). In the plane ``tr(R H) =
+    cos(theta) (H_00 + H_11) + sin(theta) (H_01 - H_10)``, so that rotation is
+    ``theta = atan2(H_01 - H_10, H_00 + H_11)`` - the SVD's answer, reflection case
+    included, without factorising a 2x2 matrix every iteration.
+    """
     w_sum = weights.sum()
     mu_s = weights @ source / w_sum
     mu_t = weights @ target / w_sum
-    cross = np.zeros((2, 2))
+    trace_part = 0.0  # H_00 + H_11
+    skew_part = 0.0  # H_01 - H_10
     for i in range(source.shape[0]):
-        for a in range(2):
-            for b in range(2):
-                cross[a, b] += (source[i, a] - mu_s[a]) * (target[i, b] - mu_t[b]) * weights[i]
-    u, _, vt = np.linalg.svd(cross)
-    reflection = 1.0 if np.linalg.det(vt.T @ u.T) >= 0.0 else -1.0
-    rot = vt.T @ np.diag(np.array([1.0, reflection])) @ u.T
-    trans = mu_t - rot @ mu_s
-    return np.array([trans[0], trans[1], math.atan2(rot[1, 0], rot[0, 0])])
+        sx, sy = source[i, 0] - mu_s[0], source[i, 1] - mu_s[1]
+        tx, ty = target[i, 0] - mu_t[0], target[i, 1] - mu_t[1]
+        trace_part += weights[i] * (sx * tx + sy * ty)
+        skew_part += weights[i] * (sx * ty - sy * tx)
+    theta = math.atan2(skew_part, trace_part)
+    cos, sin = math.cos(theta), math.sin(theta)
+    return np.array([mu_t[0] - (cos * mu_s[0] - sin * mu_s[1]),
+                     mu_t[1] - (sin * mu_s[0] + cos * mu_s[1]), theta])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -90,7 +100,7 @@ def iterate(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndar
         gated = distance[found]
         keep = adaptive_keep_fraction(gated, min_keep_fraction, max_keep_fraction, 3.0)
         kept = found[trimmed_mask(gated, keep)]
-        updated = align_svd(points[kept], target[nearest[kept]], np.ones(kept.shape[0]))
+        updated = align_pairs(points[kept], target[nearest[kept]], np.ones(kept.shape[0]))
         step = updated - estimate
         step[2] = wrap_angle(step[2])
         change = relative_pose(estimate, updated)

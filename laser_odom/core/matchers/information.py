@@ -66,7 +66,16 @@ def covariance_from_information(information: np.ndarray,
     The eigen-decomposition keeps the result symmetric positive definite even when
     the information is singular (a corridor leaves one direction unconstrained).
     """
+    return _regularised_inverse(np.ascontiguousarray(information, dtype=float),
+                                float(max_variance))
+
+
+@numba.njit(cache=True, nogil=True)
+def _regularised_inverse(information: np.ndarray, max_variance: float) -> np.ndarray:
+    """Compiled :func:`covariance_from_information` (called once or more per match)."""
     values, vectors = np.linalg.eigh(0.5 * (information + information.T))
-    variances = np.where(values > 1.0 / max_variance, 1.0 / np.maximum(values, 1e-300),
-                         max_variance)
+    variances = np.empty_like(values)
+    for i in range(values.shape[0]):
+        variances[i] = 1.0 / max(values[i], 1e-300) if values[i] > 1.0 / max_variance \
+            else max_variance
     return (vectors * variances) @ vectors.T

@@ -62,7 +62,7 @@ def trimmed_mask(residuals: np.ndarray, keep_fraction: float) -> np.ndarray:
     if keep <= 0:
         return mask
     magnitude = np.abs(residuals)
-    threshold = np.sort(magnitude)[keep - 1]
+    threshold = np.partition(magnitude, keep - 1)[keep - 1]  # O(n), no full sort
     mask[:] = magnitude < threshold
     ties = keep - int(np.count_nonzero(mask))
     for i in range(n):
@@ -96,8 +96,8 @@ def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
     a clean overlap keeps nearly all pairs, a scene with moving people or a changed
     door sheds the pairs that disagree.
     """
-    if residuals.size == 0:
-        return max_fraction
+    if residuals.size == 0 or min_fraction >= max_fraction:
+        return max_fraction  # nothing to choose: no need to sort
     magnitude = np.sort(np.abs(residuals))
     size = magnitude.size
     sigma = 1.4826 * 0.5 * (magnitude[(size - 1) // 2] + magnitude[size // 2])  # the median
