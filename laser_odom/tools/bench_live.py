@@ -70,6 +70,7 @@ class LiveRow:
     busy: int = 0
     dropped: int = 0
     cpu_percent: float = math.nan
+    process_median_ms: float = math.nan
     ready_s: float = math.nan
     first_ms: float = math.nan
 
@@ -175,8 +176,9 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
             float(np.median(latencies) * 1e3) if len(latencies) else math.nan,
             float(np.percentile(latencies, 95) * 1e3) if len(latencies) else math.nan,
             int(diag.get(BUSY_KEY, '0')), int(diag.get(DROPPED_KEY, '0')), cpu_percent,
-            ready_s, (session.received[first] - sent[first]) * 1e3
-            if first in session.received else math.nan)
+            float(diag.get('processing time median [ms]', 'nan')), ready_s,
+            (session.received[first] - sent[first]) * 1e3 if first in session.received
+            else math.nan)
     finally:
         session.close()
 
@@ -196,18 +198,21 @@ def format_live(rows: Sequence[LiveRow], beams: int, rate: float, duration: floa
              'fresh laser_odom_node per matcher',
              f'{"matcher":<8} {"sent":>6} {"processed":>9} {"no answer":>9} {"busy":>6} '
              f'{"dropped":>7} {"node med ms":>11} {"node p95 ms":>11} {"e2e med ms":>10} '
-             f'{"e2e p95 ms":>10} {"CPU %":>6} {"ready s":>7} {"first ms":>8}']
+             f'{"e2e p95 ms":>10} {"proc ms":>7} {"CPU %":>6} {"ready s":>7} '
+             f'{"first ms":>8}']
     for r in rows:
         lines.append(f'{r.matcher:<8} {r.sent:>6} {r.processed:>9} {r.skipped:>9} '
                      f'{r.busy:>6} {r.dropped:>7} '
                      f'{r.node_median_ms:>11.2f} {r.node_p95_ms:>11.2f} '
                      f'{r.e2e_median_ms:>10.2f} {r.e2e_p95_ms:>10.2f} '
-                     f'{r.cpu_percent:>6.1f} {r.ready_s:>7.2f} {r.first_ms:>8.1f}')
+                     f'{r.process_median_ms:>7.2f} {r.cpu_percent:>6.1f} {r.ready_s:>7.2f} '
+                     f'{r.first_ms:>8.1f}')
     lines.append(f'# busy: {BUSY_KEY}; dropped: {DROPPED_KEY} (both from its '
                  '/diagnostics)')
     lines.append('# node: receipt -> publish inside the node (its /diagnostics); e2e: '
                  'publish of the scan -> receipt of its odometry by the publisher')
-    lines.append('# CPU %: the node process over the stream, 100 = one core; ready s: '
+    lines.append("# proc ms: median time in the pipeline (the node's processing time); "
+                 'CPU %: the node process over the stream, 100 = one core; ready s: '
                  'process start -> subscribed and publishing; first ms: e2e of the first '
                  'scan')
     return '\n'.join(lines)
