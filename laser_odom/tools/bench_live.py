@@ -49,6 +49,11 @@ from laser_odom.tools.playback import play
 STARTUP_TIMEOUT = 30.0
 """Seconds to wait for a node to come up (discovery included)."""
 
+DISCOVERY_SETTLE = 1.0
+"""Seconds between seeing the node's subscription and the first scan: the publisher
+sees the match before the node's side has finished it, and a best-effort scan sent in
+between is lost on the way (not by the node)."""
+
 
 @dataclass
 class LiveRow:
@@ -150,6 +155,7 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
             session.log.seek(0)
             raise RuntimeError(f'{matcher}: node did not start: {session.log.read()[-500:]}')
         ready_s = time.monotonic() - session.started
+        session.spin_until(lambda: False, DISCOVERY_SETTLE)
         sent: dict[int, float] = {}
         spinner = threading.Thread(target=session.spin_until,
                                    args=(lambda: False, len(messages) / rate + 3.0))
