@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 OUT ?= out
 DEMO_DOMAIN ?= 42
 
-.PHONY: all venv test lint demo bench soak docs clean clean-kernels
+.PHONY: all venv test lint demo bench soak docs figures clean clean-kernels
 
 all: test
 
@@ -49,6 +49,13 @@ soak: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/python -m laser_odom.ros.default_params > config/default.yaml
 	$(BIN)/python -m laser_odom.ros.default_params --readme README.md
+	$(BIN)/python -m laser_odom.tools.figures
+
+# The benchmark result behind the documented figures (needs ../shared/data; ~10 min on a
+# quiet machine). Commit the JSON, then run make docs.
+figures: $(STAMP)
+	$(BIN)/laser_odom_bench --datasets fr079,mit-csail,intel,sim-office-360,sim-office-1081 \
+	    --priors constant_velocity --no-search-table --quiet --json test/figures/benchmark.json
 
 clean: clean-kernels
 	rm -rf $(VENV) $(OUT) build install log *.egg-info

@@ -44,7 +44,8 @@ from laser_odom.io.bag_dataset import (
 from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import write_text_atomically
-from laser_odom.tools.bench_table import format_search_table, format_table, machine_line
+from laser_odom.tools.bench_table import (
+    format_search_table, format_table, machine_line, provenance)
 from laser_odom.tools.quiet import warnings_silenced
 
 LOGGER = logging.getLogger('laser_odom.tools.bench')
@@ -255,8 +256,7 @@ def main_offline(args: argparse.Namespace) -> int:
     if searches:
         print(format_search_table(searches))
     if args.json is not None:
-        payload = {'machine': machine_line().lstrip('# '),
-                   'rows': [row.as_dict() for row in rows],
+        payload = {**provenance(), 'rows': [row.as_dict() for row in rows],
                    'search': [row.as_dict() for row in searches]}
         write_text_atomically(args.json, json.dumps(payload, indent=2) + '\n')
     return 0
@@ -277,7 +277,7 @@ def main_live(args: argparse.Namespace) -> int:
     print(format_live(rows, args.beams, args.rate, args.duration))
     if args.json is not None:
         write_text_atomically(args.json, json.dumps(
-            {'machine': machine_line().lstrip('# '), 'live': [vars(row) for row in rows]},
+            {**provenance(), 'live': [vars(row) for row in rows]},
             indent=2) + '\n')
     return 0
 

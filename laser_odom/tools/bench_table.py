@@ -44,6 +44,22 @@ def machine_line() -> str:
             'a warm-up, whole per-scan work in one process')
 
 
+def provenance() -> dict[str, object]:
+    """Return when and with what a benchmark ran, for its ``--json`` (figures are traced).
+
+    The date (UTC), the machine line, and the versions of Python, numpy, scipy and
+    numba: a documented figure can be reproduced, or its drift explained.
+    """
+    import datetime
+
+    import numba
+    import scipy
+    return {'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
+            'machine': machine_line().lstrip('# '),
+            'versions': {'python': platform.python_version(), 'numpy': np.__version__,
+                         'scipy': scipy.__version__, 'numba': numba.__version__}}
+
+
 def _cell(value: object, width: int, decimals: int | None) -> str:
     """Format one table cell: text left-aligned, numbers right-aligned, n/a for no value."""
     if value is None or (isinstance(value, float) and math.isnan(value)):

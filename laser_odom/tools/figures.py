@@ -1,0 +1,176 @@
+"""Documented figures, rendered from the committed benchmark result (``make docs``).
+
+The README's table of real-log figures and its per-scan times, and the block "Measured
+with these values" in each ``config/<matcher>.yaml``, are written from
+``test/figures/benchmark.json`` - the ``--json`` of one ``laser_odom_bench`` run
+(``make figures``), which records its date, machine and library versions. Nothing is
+typed by hand: ``test_docs`` fails when the files and the JSON disagree, and
+``test_real_data`` fails when the code falls more than 5 % behind a committed figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+import sys
+from typing import Any, Mapping, Sequence
+
+from laser_odom.io.text_output import write_text_atomically
+
+ROOT = Path(__file__).resolve().parents[2]
+FIGURES_JSON = ROOT / 'test' / 'figures' / 'benchmark.json'
+"""The committed benchmark result (source tree only: it is not installed)."""
+
+MATCHERS = ('icp', 'plicp', 'nicp', 'imls')
+REAL_LOGS = (('fr079', 'fr079'), ('mit-csail', 'MIT-CSAIL'), ('intel', 'Intel'))
+"""The real logs of the documented figures: dataset name and how the text names it."""
+
+PRIOR = 'constant_velocity'
+TIMING_DATASETS = ('fr079', 'sim-office-1081')
+"""Datasets whose median time per scan the README quotes (360 and 1081 beams)."""
+
+README_MARKERS = {'table': ('<!-- figures:table:begin -->', '<!-- figures:table:end -->'),
+                  'speed': ('<!-- figures:speed:begin -->', '<!-- figures:speed:end -->')}
+CONFIG_MARKERS = ('# figures:begin', '# figures:end')
+
+
+class FiguresError(ValueError):
+    """The benchmark result lacks a figure, or a file lacks the place for it."""
+
+
+def load_figures(path: Path = FIGURES_JSON) -> dict[str, Any]:
+    """Read the benchmark result; a missing file or key is a :class:`FiguresError`."""
+    try:
+        payload = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as error:
+        raise FiguresError(f'cannot read the benchmark result {path}: {error}') from error
+    if not isinstance(payload, dict) or not isinstance(payload.get('rows'), list):
+        raise FiguresError(f'{path} is not a laser_odom_bench --json result (no rows)')
+    return payload
+
+
+def figure_rows(payload: Mapping[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
+    """Return the constant-velocity rows by (dataset, matcher)."""
+    return {(row['dataset'], row['matcher']): row for row in payload['rows']
+            if row.get('prior') == PRIOR}
+
+
+def figure(payload: Mapping[str, Any], dataset: str, matcher: str) -> dict[str, Any]:
+    """Return the row of ``matcher`` on ``dataset``; say which is missing if it is."""
+    row = figure_rows(payload).get((dataset, matcher))
+    if row is None:
+        raise FiguresError(f'the benchmark result has no {matcher} row on {dataset} '
+                           f'({PRIOR} prior): run make figures')
+    return row
+
+
+def readme_table(payload: Mapping[str, Any]) -> str:
+    """Markdown table: mean RPE (m / deg), ATE (m) and failed steps per matcher and log."""
+    beams = {name: figure(payload, name, MATCHERS[0])['beams'] for name, _ in REAL_LOGS}
+    heading = ' | '.join(f'{name} ({beams[name]} beams)' for name, _ in REAL_LOGS)
+    lines = [f'| matcher | {heading} |',
+             '|---|' + '---|' * len(REAL_LOGS)]
+    for matcher in MATCHERS:
+        cells = []
+        for name, _ in REAL_LOGS:
+            row = figure(payload, name, matcher)
+            cells.append(f'{row["rpe_trans_mean"]:.3f} / {row["rpe_rot_mean"]:.2f} / '
+                         f'{row["ate"]:.2f} / {row["failed"]}')
+        lines.append(f'| `{matcher}` | ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
+def speed_sentence(payload: Mapping[str, Any]) -> str:
+    """Return the README's per-scan times: fr079 (360 beams), 1081-beam simulated office."""
+    def times(dataset: str) -> list[str]:
+        return [f'{figure(payload, dataset, m)["median_ms"]:.1f}' for m in MATCHERS]
+
+    at_360, at_1081 = (times(name) for name in TIMING_DATASETS)
+    machine = payload.get('machine', 'unknown machine').split(';')[0]
+    named = ', '.join(f'`{m}` {t} ms' for m, t in zip(MATCHERS, at_360))
+    return (f'Median time per scan on fr079 (360 beams, constant-velocity prior, '
+            f'`laser_odom_bench`, {machine}, {payload.get("date", "undated")}): {named}; at '
+            f'1081 beams (simulated office) {", ".join(at_1081[:-1])} and {at_1081[-1]} ms.\n')
+
+
+def config_block(payload: Mapping[str, Any], matcher: str) -> str:
+    """Comment lines for ``config/<matcher>.yaml``: the matcher's figures on each log."""
+    lines = ['# Measured with these values by laser_odom_bench (constant-velocity prior, '
+             f'{payload.get("date", "undated")}):',
+             '# mean RPE between consecutive reference poses, ATE after SE(2) alignment, '
+             'failed steps',
+             '# (RPE > 0.5 m or 10 deg) and median time per scan:']
+    for name, label in REAL_LOGS:
+        row = figure(payload, name, matcher)
+        lines.append(f'#   {label:<10} {row["rpe_trans_mean"]:.4f} m  '
+                     f'{row["rpe_rot_mean"]:.3f} deg  ATE {row["ate"]:.2f} m  '
+                     f'{row["failed"]} failed  {row["median_ms"]:4.1f} ms ({row["beams"]} beams)')
+    return '\n'.join(lines) + '\n'
+
+
+def replace_between(text: str, markers: tuple[str, str], body: str, where: str) -> str:
+    """Return ``text`` with what lies between the two marker lines replaced by ``body``."""
+    begin, end = markers
+    if text.count(begin) != 1 or text.count(end) != 1 or text.index(begin) > text.index(end):
+        raise FiguresError(f'{where} needs one {begin!r} line and one {end!r} line after it')
+    head, rest = text.split(begin, 1)
+    tail = rest.split(end, 1)[1]
+    return f'{head}{begin}\n{body}{end}{tail}'
+
+
+def rendered_readme(text: str, payload: Mapping[str, Any]) -> str:
+    """Return the README text with its figures rendered from ``payload``."""
+    text = replace_between(text, README_MARKERS['table'], readme_table(payload), 'README')
+    return replace_between(text, README_MARKERS['speed'], speed_sentence(payload), 'README')
+
+
+def rendered_config(text: str, payload: Mapping[str, Any], matcher: str) -> str:
+    """Return a matcher's params-file text with its figures rendered from ``payload``."""
+    return replace_between(text, CONFIG_MARKERS, config_block(payload, matcher),
+                           f'config/{matcher}.yaml')
+
+
+def regression(row: Mapping[str, Any], documented: Mapping[str, Any],
+               tolerance: float = 0.05) -> list[str]:
+    """Return the figures of ``row`` more than ``tolerance`` worse than ``documented``.
+
+    Errors (mean RPE, ATE) may grow by the fraction; failed steps by the same fraction
+    rounded up, so a log documented with 0 failures must keep 0.
+    """
+    worse = []
+    for key in ('rpe_trans_mean', 'rpe_rot_mean', 'ate'):
+        if not row[key] <= documented[key] * (1.0 + tolerance):
+            worse.append(f'{key} {row[key]:.4f} > {documented[key]:.4f} + {tolerance:.0%}')
+    allowed = documented['failed'] + math.ceil(documented['failed'] * tolerance)
+    if row['failed'] > allowed:
+        worse.append(f'failed {row["failed"]} > {allowed}')
+    return worse
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Rewrite the README and config figures from the committed benchmark result."""
+    parser = argparse.ArgumentParser(prog='python -m laser_odom.tools.figures',
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument('--json', type=Path, default=FIGURES_JSON,
+                        help='benchmark result (default: test/figures/benchmark.json)')
+    parser.add_argument('--readme', type=Path, default=ROOT / 'README.md')
+    parser.add_argument('--config-dir', type=Path, default=ROOT / 'config')
+    args = parser.parse_args(argv)
+    try:
+        payload = load_figures(args.json)
+        updated = {args.readme: rendered_readme(args.readme.read_text(), payload)}
+        for matcher in MATCHERS:
+            path = args.config_dir / f'{matcher}.yaml'
+            updated[path] = rendered_config(path.read_text(), payload, matcher)
+    except (FiguresError, OSError) as error:
+        print(f'figures: error: {error}', file=sys.stderr)
+        return 2
+    for path, text in updated.items():
+        write_text_atomically(path, text)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
