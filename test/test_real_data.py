@@ -23,7 +23,7 @@ CSM_BAR = {
 
 
 PEERS_MET = ('plicp', 'nicp', 'imls')
-"""The matchers that meet CSM's figures (``icp`` does not on intel: 18 failed steps)."""
+"""The matchers that meet CSM's figures (``icp`` does not: fr079 ATE, intel failed steps)."""
 
 CASES = [(m, d) for m in MATCHERS for d in sorted(CSM_BAR)]
 

@@ -273,7 +273,7 @@ def main_live(args: argparse.Namespace) -> int:
     except (ValueError, RuntimeError) as err:
         print(f'laser_odom_bench: error: {err}', file=sys.stderr)
         return 2
-    print(machine_line())
+    print(machine_line(live=True))
     print(format_live(rows, args.beams, args.rate, args.duration))
     if args.json is not None:
         write_text_atomically(args.json, json.dumps(

@@ -213,12 +213,14 @@ def format_live(rows: Sequence[LiveRow], beams: int, rate: float, duration: floa
                      f'{r.e2e_median_ms:>10.2f} {r.e2e_p95_ms:>10.2f} '
                      f'{r.process_median_ms:>7.2f} {r.cpu_percent:>6.1f} {r.ready_s:>7.2f} '
                      f'{r.first_ms:>8.1f}')
-    lines.append(f'# busy: {BUSY_KEY}; dropped: {DROPPED_KEY} (both from its '
-                 '/diagnostics)')
+    lines.append('# sent: scans published; processed: scans whose odometry came back; no '
+                 'answer: sent - processed, of which the node counted')
+    lines.append(f'#   busy: {BUSY_KEY}; dropped: {DROPPED_KEY} (both from its '
+                 '/diagnostics; the rest was lost after the node)')
     lines.append('# node: receipt -> publish inside the node (its /diagnostics); e2e: '
                  'publish of the scan -> receipt of its odometry by the publisher')
-    lines.append("# proc ms: median time in the pipeline (the node's processing time); "
-                 'CPU %: the node process over the stream, 100 = one core; ready s: '
-                 'process start -> subscribed and publishing; first ms: e2e of the first '
-                 'scan')
+    lines.append("# proc ms: the pipeline's own median time per scan (the rest of 'node' is "
+                 "the node's hand-over and publishing); CPU %: the node process over the")
+    lines.append('#   stream, 100 = one core; ready s: process start -> subscribed and '
+                 'publishing; first ms: e2e of the first scan')
     return '\n'.join(lines)

@@ -37,11 +37,13 @@ def cpu_name() -> str:
     return platform.processor() or 'unknown CPU'
 
 
-def machine_line() -> str:
-    """Return the line that says what machine the timings come from."""
+def machine_line(live: bool = False) -> str:
+    """Return the line that says what machine the timings come from (and how taken)."""
+    how = ('timings: a node process and this one, over DDS' if live else
+           'timings: median/p95 ms per scan after a warm-up, whole per-scan work in one '
+           'process')
     return (f'# {cpu_name()}, {os.cpu_count()} cores; Python {platform.python_version()}, '
-            f'numpy {np.__version__}; timings: median/p95 ms per scan after '
-            'a warm-up, whole per-scan work in one process')
+            f'numpy {np.__version__}; {how}')
 
 
 def provenance() -> dict[str, object]:
@@ -55,7 +57,7 @@ def provenance() -> dict[str, object]:
     import numba
     import scipy
     return {'date': datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
-            'machine': machine_line().lstrip('# '),
+            'machine': machine_line().split(';')[0].lstrip('# '),
             'versions': {'python': platform.python_version(), 'numpy': np.__version__,
                          'scipy': scipy.__version__, 'numba': numba.__version__}}
 

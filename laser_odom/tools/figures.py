@@ -88,7 +88,7 @@ def speed_sentence(payload: Mapping[str, Any]) -> str:
         return [f'{figure(payload, dataset, m)["median_ms"]:.1f}' for m in MATCHERS]
 
     at_360, at_1081 = (times(name) for name in TIMING_DATASETS)
-    machine = payload.get('machine', 'unknown machine').split(';')[0]
+    machine = payload.get('machine', 'unknown machine').split(';')[0]  # older: whole line
     named = ', '.join(f'`{m}` {t} ms' for m, t in zip(MATCHERS, at_360))
     return (f'Median time per scan on fr079 (360 beams, constant-velocity prior, '
             f'`laser_odom_bench`, {machine}, {payload.get("date", "undated")}): {named}; at '
@@ -155,8 +155,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      description=__doc__.splitlines()[0])
     parser.add_argument('--json', type=Path, default=FIGURES_JSON,
                         help='benchmark result (default: test/figures/benchmark.json)')
-    parser.add_argument('--readme', type=Path, default=ROOT / 'README.md')
-    parser.add_argument('--config-dir', type=Path, default=ROOT / 'config')
+    parser.add_argument('--readme', type=Path, default=ROOT / 'README.md',
+                        help="README to update (default: the source tree's)")
+    parser.add_argument('--config-dir', type=Path, default=ROOT / 'config',
+                        help='folder of the <matcher>.yaml files to update (default: config)')
     args = parser.parse_args(argv)
     try:
         payload = load_figures(args.json)
