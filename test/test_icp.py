@@ -115,3 +115,23 @@ def test_too_few_points_fails_cleanly():
     result = create_matcher('icp').match(few, few, se2.pose(0.1, 0.0, 0.0))
     assert not result.converged
     assert np.allclose(result.pose, [0.1, 0.0, 0.0])
+
+
+def test_points_beyond_the_distance_gate_do_not_pull_the_estimate():
+    # Half as many points again, in a cluster half a metre ahead of the robot (a person
+    # the reference did not see), 1.6 m from any wall: beyond the 0.3 m gate they pair
+    # with nothing; without the gate trimming cannot drop them all.
+    laser = LaserModel(noise_sigma=0.0)
+    world, start = get_world('office'), office_pose()
+    motion = se2.pose(0.1, 0.0, math.radians(2.0))
+    reference = scan_to_points(render_scan(world, start, laser))
+    current = scan_to_points(render_scan(world, se2.compose(start, motion), laser))
+    clutter = np.array([0.5, 0.0]) + np.random.default_rng(4).normal(0.0, 0.05,
+                                                                     (len(current) // 2, 2))
+    points = np.vstack((current.points, clutter))
+    cluttered = ScanPoints(points, np.arange(len(points)), np.hypot(points[:, 0], points[:, 1]))
+    gated = create_matcher('icp').match(reference, cluttered, motion)
+    ungated = create_matcher('icp', {'max_correspondence_distance': 10.0}).match(
+        reference, cluttered, motion)
+    assert np.linalg.norm(gated.pose[:2] - motion[:2]) < 0.005
+    assert np.linalg.norm(ungated.pose[:2] - motion[:2]) > 0.05  # what the gate prevents

@@ -133,3 +133,20 @@ def test_jittery_logger_stamps_use_the_mean_scan_interval():
         regular.update(np.array([0.05, 0.0, 0.0]), dt)
     assert regular.effective_dt(0.2) == 0.2
     assert regular.effective_dt(0.001) == 0.1  # a lone glitch is one period
+
+
+def test_acceptance_rejects_unconverged_and_poorly_paired_matches():
+    from laser_odom.core.acceptance import rejection_reason
+    from laser_odom.core.config import AcceptanceConfig
+    from laser_odom.core.matchers import MatchResult
+    guess = se2.pose(0.1, 0.0, 0.0)
+    good = MatchResult(pose=guess.copy(), converged=True, iterations=5, inlier_ratio=0.9,
+                       residual=0.01, information=np.eye(3), covariance=np.eye(3) * 1e-4)
+    config = AcceptanceConfig()
+    assert rejection_reason(good, guess, config) is None
+    unconverged = MatchResult(**{**good.__dict__, 'converged': False})
+    assert rejection_reason(unconverged, guess, config) == 'not_converged'
+    sparse = MatchResult(**{**good.__dict__, 'inlier_ratio': config.min_inlier_ratio - 0.01})
+    assert rejection_reason(sparse, guess, config) == 'low_inlier_ratio'
+    assert rejection_reason(MatchResult(**{**good.__dict__, 'inlier_ratio':
+                                           config.min_inlier_ratio}), guess, config) is None

@@ -241,3 +241,16 @@ def test_config_file_restates_the_tuned_defaults():
         lines = text.splitlines()
         at = next(i for i, line in enumerate(lines) if line.strip().startswith(name + ':'))
         assert lines[at - 1].strip().startswith('#'), name
+
+
+def test_a_match_that_does_not_converge_is_restarted_even_with_a_low_residual():
+    # Two iterations cannot converge from 3 cm / 2 deg off; the residual gate is out of
+    # reach (10 m), so only the non-convergence rule can call the restart.
+    reference, current = scan_pair('office', office_pose(10.0), MOTION, SEMICIRCLE)
+    guess = MOTION + np.array([0.03, 0.0, math.radians(2.0)])
+    settings = {'max_iterations': 2, 'restart_residual': 10.0}
+    restarted = create_matcher('plicp', settings).match(reference, current, guess)
+    single = create_matcher('plicp', {**settings, 'restart_residual': 0.0}).match(
+        reference, current, guess)
+    assert not single.converged and single.iterations == 2
+    assert restarted.iterations > 2  # the restart ran its own iterations

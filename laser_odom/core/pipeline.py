@@ -22,6 +22,7 @@ from laser_odom.core.deskew import deskew_change, DESKEW_EVENTS, deskewed, twist
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
+from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
 from laser_odom.core.registration import (
     Registrar, Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS)
 from laser_odom.core.scan import LaserScan, ScanPoints
@@ -96,7 +97,8 @@ class OdometryPipeline:
         self.keyframe: ScanPoints | None = None
         self.keyframe_deskewed = False
         self.keyframe_pose = self.pose.copy()
-        self.keyframe_covariance = self.pose_covariance.copy()
+        self.uncertainty = PoseUncertainty.at(self.pose_covariance)
+        self.keyframe_uncertainty = self.uncertainty
         self.last_stamp_ns: int | None = None
         self.untrusted = 'reset'
         self.motion.reset()
@@ -215,12 +217,13 @@ class OdometryPipeline:
             current, registration, verdict = self._deskew_again(
                 current, sweep_dt, registration, verdict)
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
-        ja, jb = se2.compose_jacobians(self.keyframe_pose, verdict.pose)
-        new_covariance = (ja @ self.keyframe_covariance @ ja.T
-                          + jb @ verdict.covariance @ jb.T)
+        # Compounding with correlated step errors (shared scans, bias): pose_uncertainty.
+        self.uncertainty = self.keyframe_uncertainty.propagate(
+            self.keyframe_pose, verdict.pose, verdict.covariance,
+            StepErrorModel.of(self.matcher.config))
         step = se2.relative(self.pose, new_pose)
         step_covariance = verdict.covariance
-        self.pose, self.pose_covariance = new_pose, 0.5 * (new_covariance + new_covariance.T)
+        self.pose, self.pose_covariance = new_pose, self.uncertainty.pose_covariance
         if verdict.status == 'rejected':
             # The prediction may be what was wrong: keeping its velocity would make every
             # later (correct) match a large correction, and the odometry would run away
@@ -330,4 +333,4 @@ class OdometryPipeline:
         sweeps_after_stamp = current.times is not None and float(np.median(current.times)) > 0
         self.keyframe_deskewed = motion_known and not sweeps_after_stamp
         self.keyframe_pose = self.pose.copy()
-        self.keyframe_covariance = self.pose_covariance.copy()
+        self.keyframe_uncertainty = self.uncertainty

@@ -36,6 +36,16 @@ class MatcherConfig:
         1.0, 'Factor on the match covariance from the residuals (inflation calibrated so '
         'that the normalised estimation error squared on simulated runs is about 3).',
         0.01, 1000.0)
+    covariance_shared_scan: float = param(
+        0.0, 'Share of the match covariance that is the noise of one scan: consecutive '
+        'scan-to-scan matches share a scan, so their errors partly cancel in the '
+        'integrated pose (calibrated per matcher on simulated runs).', 0.0, 1.0)
+    covariance_bias: float = param(
+        0.0, 'Share of the rest that is a bias correlated over many steps: it adds up '
+        'linearly in the integrated pose (calibrated per matcher).', 0.0, 1.0)
+    covariance_bias_correlation: float = param(
+        0.0, 'Correlation of that bias between consecutive steps (0.98: some 50 steps).',
+        0.0, 0.999)
 
 
 @dataclass

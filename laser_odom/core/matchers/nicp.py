@@ -40,6 +40,10 @@ from laser_odom.core.scan import ScanPoints
 class NicpConfig(MatcherConfig):
     """NICP settings; the defaults are tuned on the fr079, MIT-CSAIL and Intel logs."""
 
+    covariance_shared_scan: float = retune(MatcherConfig, 'covariance_shared_scan', 0.95)
+    covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.4)
+    covariance_bias_correlation: float = retune(MatcherConfig, 'covariance_bias_correlation',
+                                                0.95)
     max_iterations: int = retune(MatcherConfig, 'max_iterations', 40)
     max_correspondence_distance: float = retune(MatcherConfig, 'max_correspondence_distance', 0.5)
     convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)

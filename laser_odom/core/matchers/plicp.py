@@ -51,6 +51,10 @@ class PlicpConfig(MatcherConfig):
     convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
     convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
     covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 2.0)
+    covariance_shared_scan: float = retune(MatcherConfig, 'covariance_shared_scan', 0.6)
+    covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.125)
+    covariance_bias_correlation: float = retune(MatcherConfig, 'covariance_bias_correlation',
+                                                0.98)
     max_beam_gap: int = param(
         3, 'Reference points whose beam indices differ by more than this do not form '
         'a segment.', 1, 1000)

@@ -14,7 +14,8 @@ starting value ``v`` (the node's default, or the ``--params-file`` value):
 
 A few settings need their own range (:data:`RANGES`): those whose default is 0
 (keyframes off) and the search resolution, whose cost grows with the inverse square.
-Not searched: ``covariance_scale``, which calibrates the published covariance and
+Not searched: ``covariance_scale`` and the ``covariance_*`` error shares, which calibrate
+the published covariance and
 must not be traded for accuracy. ``prior`` searches ``none`` and
 ``constant_velocity``, plus ``odom`` / ``imu`` when every bag has that topic.
 
@@ -44,7 +45,8 @@ PIPELINE_PARAMETERS = (
 """Pipeline settings searched with every matcher: the prior, the gates, keyframes and
 the global search."""
 
-NOT_SEARCHED = ('covariance_scale',)
+NOT_SEARCHED = ('covariance_scale', 'covariance_shared_scan', 'covariance_bias',
+                'covariance_bias_correlation')
 """Matcher parameters left out: they calibrate the covariance, not the pose."""
 
 RANGES: dict[str, tuple[float, float]] = {

@@ -1,0 +1,188 @@
+"""The published pose covariance is honest over whole runs, not only per step.
+
+NEES (e^T P^-1 e, 3 dof: about 3 when honest) of relative poses over 1, 10 and 100
+steps and of the integrated pose the pipeline publishes, against the simulator's
+truth, in two worlds with two noise seeds each (averaged per world), keyframes off and
+on. Far below 3 fails too: a covariance too pessimistic to be useful.
+"""
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+from laser_odom.core.config import KeyframeConfig, PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.matchers import default_config
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
+from laser_odom.core.simulation import LaserModel, simulate
+
+LOW, HIGH = 1.5, 6.0
+WINDOWS = (1, 10, 100)
+SEEDS = {'office': (5, 9), 'cluttered': (6, 10)}
+HONEST = ('plicp', 'nicp', 'imls')
+ICP_GAP = pytest.mark.xfail(
+    strict=True, reason='icp: its step covariance is too pessimistic among clutter (step '
+    'NEES ~1) while its pairs are biased along corridors (office windows of 100 steps '
+    '~20-30); no error model fits both - the bias has to go from the matcher first')
+MATCHERS = [*HONEST, pytest.param('icp', marks=ICP_GAP)]
+KEYFRAME_GAP = pytest.mark.xfail(
+    strict=True, reason='with keyframes (0.3 m / 0.3 rad) the integrated pose of plicp and '
+    'imls comes out 2-5x too pessimistic (NEES 0.2-1.6) although each match against its '
+    'keyframe is honest (NEES 2.6): the error model is calibrated per scan, not per '
+    'keyframe transition')
+KEYFRAME_MATCHERS = [pytest.param('plicp', marks=KEYFRAME_GAP), 'nicp',
+                     pytest.param('imls', marks=KEYFRAME_GAP), pytest.param('icp', marks=ICP_GAP)]
+
+
+@dataclass
+class Recorded:
+    """What one run published, with the truth."""
+
+    poses: np.ndarray
+    pose_covariances: np.ndarray
+    steps: np.ndarray
+    step_covariances: np.ndarray
+    truth: np.ndarray
+    model: StepErrorModel
+
+
+@pytest.fixture(scope='module')
+def runs():
+    """100 s (1000 scans) per world and seed, 1 cm range noise."""
+    return {(world, seed): simulate(world, duration=100.0,
+                                    laser=LaserModel(noise_sigma=0.01), seed=seed)
+            for world, seeds in SEEDS.items() for seed in seeds}
+
+
+def record(run, matcher: str, keyframes: KeyframeConfig | None = None) -> Recorded:
+    """Run the pipeline; keep poses, covariances and the per-step motion and covariance."""
+    config = PipelineConfig(matcher=matcher)
+    if keyframes is not None:
+        config = replace(config, keyframes=keyframes)
+    pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
+    poses, covariances, steps, step_covariances = [], [], [], []
+    for index, scan in enumerate(run.scans):
+        estimate = pipeline.process(scan)
+        if index > 0:
+            dt = (scan.stamp_ns - run.scans[index - 1].stamp_ns) * 1e-9
+            steps.append(se2.relative(poses[-1], estimate.pose))
+            step_covariances.append(estimate.twist_covariance * dt * dt)
+        poses.append(estimate.pose)
+        covariances.append(estimate.pose_covariance)
+    truth = np.array([se2.relative(run.reference.poses[0], p) for p in run.reference.poses])
+    return Recorded(np.array(poses), np.array(covariances), np.array(steps),
+                    np.array(step_covariances), truth,
+                    StepErrorModel.of(default_config(matcher)))
+
+
+def nees(error: np.ndarray, covariance: np.ndarray) -> float:
+    """Return e^T P^-1 e with the angle wrapped."""
+    error = np.array(error, dtype=float)
+    error[2] = se2.wrap_angle(error[2])
+    return float(error @ np.linalg.solve(covariance, error))
+
+
+def window_nees(rec: Recorded, steps: int) -> float:
+    """Mean NEES of the relative poses over ``steps`` steps (windows every steps/2)."""
+    values = []
+    for start in range(0, len(rec.steps) - steps + 1, max(1, steps // 2)):
+        estimate, state = se2.pose(), PoseUncertainty.at()
+        for k in range(start, start + steps):
+            state = state.propagate(estimate, rec.steps[k], rec.step_covariances[k], rec.model)
+            estimate = se2.compose(estimate, rec.steps[k])
+        truth = se2.relative(rec.truth[start], rec.truth[start + steps])
+        values.append(nees(estimate - truth, state.pose_covariance))
+    return float(np.mean(values))
+
+
+def integrated_nees(rec: Recorded) -> float:
+    """Mean NEES of the published pose against the truth (after the first 10 scans)."""
+    return float(np.mean([nees(rec.poses[k] - rec.truth[k], rec.pose_covariances[k])
+                          for k in range(10, len(rec.poses))]))
+
+
+@pytest.fixture(scope='module')
+def recordings(runs):
+    """Each matcher over every run, keyframes off (the default)."""
+    cache = {}
+
+    def get(matcher: str, world: str) -> list[Recorded]:
+        for seed in SEEDS[world]:
+            if (matcher, seed) not in cache:
+                cache[matcher, seed] = record(runs[world, seed], matcher)
+        return [cache[matcher, seed] for seed in SEEDS[world]]
+    return get
+
+
+@pytest.mark.parametrize('world', sorted(SEEDS))
+@pytest.mark.parametrize('matcher', MATCHERS)
+def test_relative_and_integrated_pose_nees_are_about_three(recordings, matcher, world):
+    recorded = recordings(matcher, world)
+    figures = {f'{n} steps': np.mean([window_nees(r, n) for r in recorded]) for n in WINDOWS}
+    figures['integrated'] = np.mean([integrated_nees(r) for r in recorded])
+    assert all(LOW <= value <= HIGH for value in figures.values()), (matcher, world, figures)
+
+
+@pytest.mark.parametrize('matcher', KEYFRAME_MATCHERS)
+def test_integrated_pose_nees_with_keyframes(runs, matcher):
+    keyframes = KeyframeConfig(keyframe_distance=0.3, keyframe_angle=0.3)
+    values = [integrated_nees(record(runs[world, seeds[0]], matcher, keyframes))
+              for world, seeds in SEEDS.items()]
+    assert LOW <= np.mean(values) <= HIGH, (matcher, values)
+
+
+# --- the model on its own ---------------------------------------------------------
+
+STEP = se2.pose(0.1, 0.0, 0.0)
+S = np.diag([1e-4, 4e-4, 1e-5])
+
+
+def straight_run(model: StepErrorModel, steps: int) -> np.ndarray:
+    """Variances of x and yaw after ``steps`` equal straight steps of covariance S.
+
+    (Along x, heading errors reach only y, through the lever arm.)
+    """
+    pose, state = se2.pose(), PoseUncertainty.at()
+    for _ in range(steps):
+        state = state.propagate(pose, STEP, S, model)
+        pose = se2.compose(pose, STEP)
+    return np.diag(state.pose_covariance)[[0, 2]]
+
+
+def test_white_errors_compound_as_smith_self_and_cheeseman():
+    pose, expected = se2.pose(0.3, -0.2, 0.4), np.diag([1e-3, 2e-3, 3e-4])
+    state = PoseUncertainty.at(expected)
+    for step in (se2.pose(0.2, 0.05, 0.1), se2.pose(0.1, -0.1, -0.3)):
+        ja, jb = se2.compose_jacobians(pose, step)
+        expected = ja @ expected @ ja.T + jb @ S @ jb.T
+        state = state.propagate(pose, step, S, StepErrorModel())
+        pose = se2.compose(pose, step)
+    assert np.allclose(state.pose_covariance, expected, rtol=1e-12, atol=1e-15)
+
+
+def test_shared_scan_noise_telescopes():
+    # e_k = n_k - n_{k-1} only: without turning, k steps err by n_k - n_0, whatever k.
+    model = StepErrorModel(shared_scan=1.0)
+    one = np.diag(S)[[0, 2]]
+    assert np.allclose(straight_run(model, 1), one)
+    assert np.allclose(straight_run(model, 20), one)
+    assert np.allclose(straight_run(StepErrorModel(), 20), 20 * one)  # white: linear growth
+
+
+def test_a_persistent_bias_adds_up_linearly():
+    model = StepErrorModel(bias_share=1.0, bias_correlation=0.999)
+    grown = straight_run(model, 20)
+    # Nearly the same error in every step: variance ~ k^2 S (exactly sum_ij phi^|i-j| S).
+    phi = 0.999
+    expected = sum(phi ** abs(i - j) for i in range(20) for j in range(20))
+    assert np.allclose(grown, expected * np.diag(S)[[0, 2]], rtol=1e-6)
+    assert expected > 0.98 * 400
+
+
+def test_one_step_keeps_the_matchers_covariance_whatever_the_shares():
+    for model in (StepErrorModel(0.6, 0.125, 0.98), StepErrorModel(0.95, 0.4, 0.95),
+                  StepErrorModel(0.0, 1.0, 0.5)):
+        assert np.allclose(straight_run(model, 1), np.diag(S)[[0, 2]])
