@@ -1,0 +1,109 @@
+"""Mutation testing of one core module with cosmic-ray (``make mutation MODULE=se2``).
+
+Each mutant (an operator, comparison, constant or boolean changed in the module's
+source) is run against the module's self-contained tests; a mutant the tests do not
+notice is a gap to close with a test, or an equivalent change to list with the reason.
+The run happens in a temporary clone of the committed tree (the working tree is never
+mutated). In a module with compiled kernels numba is switched off, since a kernel of
+another module keeps the code it inlined from a cached one and would hide the mutant;
+the pure-Python modules keep numba on, with a kernel cache of their own that only
+their unmutated callees fill. The mutants are the operators a typo could produce: arithmetic (+ - * /), comparisons, boolean
+constants and connectives, unary minus, numbers and loops; bit, power, modulo and
+floor-division replacements (a float raises at once) and decorator removal (numba's
+``njit`` is equivalent to the plain function) are left out.
+
+    python .ci/mutation.py se2 [--session FILE]
+
+prints the score and every surviving mutant; ``--session`` keeps the cosmic-ray
+session (a sqlite file) to resume or inspect with ``cr-report``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+
+ROOT = Path(__file__).resolve().parents[1]
+CORE = 'laser_odom/core'
+M = f'{CORE}/matchers'
+MODULES = {
+    'se2': (f'{CORE}/se2.py', ['test/test_se2.py']),
+    'acceptance': (f'{CORE}/acceptance.py', ['test/test_pipeline.py', 'test/test_degeneracy.py']),
+    'validation': (f'{CORE}/validation.py', ['test/test_scan.py', 'test/test_pipeline.py']),
+    'motion': (f'{CORE}/motion.py', ['test/test_pipeline.py', 'test/test_priors.py']),
+    'pipeline': (f'{CORE}/pipeline.py', ['test/test_pipeline.py']),
+    'pose_uncertainty': (f'{CORE}/pose_uncertainty.py',
+                         ['test/test_pose_covariance.py::test_white_errors_compound_as_smith_self_and_cheeseman',
+                          'test/test_pose_covariance.py::test_shared_scan_noise_telescopes',
+                          'test/test_pose_covariance.py::test_a_persistent_bias_adds_up_linearly',
+                          'test/test_pose_covariance.py::test_one_step_keeps_the_matchers_covariance_whatever_the_shares']),
+    'robust': (f'{M}/robust.py', ['test/test_robustness.py']),
+    'icp_solver': (f'{M}/icp_solver.py', ['test/test_icp.py']),
+    'plicp_solver': (f'{M}/plicp_solver.py', ['test/test_plicp.py']),
+    'plicp_segments': (f'{M}/plicp_segments.py', ['test/test_plicp.py']),
+    'nicp_model': (f'{M}/nicp_model.py', ['test/test_nicp.py']),
+    'nicp_solver': (f'{M}/nicp_solver.py', ['test/test_nicp.py']),
+    'imls_surface': (f'{M}/imls_surface.py', ['test/test_imls.py']),
+    'imls_solver': (f'{M}/imls_solver.py', ['test/test_imls.py']),
+}
+"""Module name -> (source file, the self-contained tests that guard it)."""
+
+PURE_PYTHON = {'acceptance', 'validation', 'motion', 'pipeline', 'pose_uncertainty'}
+"""Modules without compiled kernels: their tests run with numba on."""
+
+EXCLUDED = [r'core/ReplaceBinaryOperator_\w+_(BitAnd|BitOr|BitXor|LShift|RShift|Mod|FloorDiv|Pow)',
+            r'core/ReplaceBinaryOperator_(BitAnd|BitOr|BitXor|LShift|RShift|Mod|FloorDiv|Pow)_\w+',
+            r'core/ReplaceUnaryOperator_\w+_(Invert|Not|UAdd)', r'core/RemoveDecorator']
+
+
+def config_text(module: str, work: Path, python: str, timeout: float) -> str:
+    """Return the cosmic-ray configuration for ``module`` in the clone ``work``."""
+    path, tests = MODULES[module]
+    numba = (f'NUMBA_CACHE_DIR={work}/.kernels' if module in PURE_PYTHON
+             else 'NUMBA_DISABLE_JIT=1')
+    command = (f'env {numba} PYTHONPATH={work} {python} -m pytest -x -q '
+               f'-p no:cacheprovider {" ".join(tests)}')
+    excluded = ', '.join(f'"{pattern}"' for pattern in EXCLUDED)
+    return (f'[cosmic-ray]\nmodule-path = "{path}"\ntimeout = {timeout}\n'
+            f'excluded-modules = []\ntest-command = "{command}"\n\n'
+            f'[cosmic-ray.distributor]\nname = "local"\n\n'
+            f'[cosmic-ray.filters.operators-filter]\nexclude-operators = [{excluded}]\n')
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run cosmic-ray over one module and print its score and surviving mutants."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('module', choices=sorted(MODULES))
+    parser.add_argument('--session', type=Path, default=None,
+                        help='keep the cosmic-ray session here (sqlite; resumed if it exists)')
+    parser.add_argument('--timeout', type=float, default=300.0,
+                        help='seconds one mutant may take before it counts as killed')
+    args = parser.parse_args(argv)
+    bin_dir = Path(sys.executable).parent
+    with tempfile.TemporaryDirectory(prefix='laser_odom-mutation-') as temp:
+        work = Path(temp) / 'tree'
+        subprocess.run(['git', 'clone', '-q', str(ROOT), str(work)], check=True)
+        config = work / 'mutation.toml'
+        config.write_text(config_text(args.module, work, sys.executable, args.timeout))
+        session = (args.session or Path(temp) / 'session.sqlite').resolve()
+        env = dict(os.environ)
+        if not session.exists():
+            subprocess.run([bin_dir / 'cosmic-ray', 'init', str(config), str(session)],
+                           cwd=work, check=True, env=env)
+            subprocess.run([bin_dir / 'cr-filter-operators', str(session), str(config)],
+                           cwd=work, check=True, env=env)
+        subprocess.run([bin_dir / 'cosmic-ray', 'exec', str(config), str(session)],
+                       cwd=work, check=True, env=env)
+        report = subprocess.run([bin_dir / 'cr-report', '--show-diff', '--surviving-only',
+                                 str(session)],
+                                cwd=work, check=True, env=env, capture_output=True, text=True)
+        print(report.stdout)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
