@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 OUT ?= out
 DEMO_DOMAIN ?= 42
 
-.PHONY: all venv test lint demo bench soak docs figures clean clean-kernels
+.PHONY: all venv test lint demo bench soak docs figures mutation clean clean-kernels
 
 all: test
 
@@ -50,6 +50,12 @@ docs: $(STAMP)
 	$(BIN)/python -m laser_odom.ros.default_params > config/default.yaml
 	$(BIN)/python -m laser_odom.ros.default_params --readme README.md
 	$(BIN)/python -m laser_odom.tools.figures
+
+# Mutation testing of one core module (cosmic-ray), e.g. make mutation MODULE=acceptance;
+# python .ci/mutation.py --help lists the modules. Minutes per module, in a temporary clone.
+MODULE ?= se2
+mutation: $(STAMP)
+	$(BIN)/python .ci/mutation.py $(MODULE)
 
 # The benchmark result behind the documented figures (needs ../shared/data; ~10 min on a
 # quiet machine). Commit the JSON, then run make docs.

@@ -8,9 +8,10 @@ mutated). In a module with compiled kernels numba is switched off, since a kerne
 another module keeps the code it inlined from a cached one and would hide the mutant;
 the pure-Python modules keep numba on, with a kernel cache of their own that only
 their unmutated callees fill. The mutants are the operators a typo could produce:
-arithmetic (+ - * /), comparisons, boolean constants and connectives, unary minus, numbers and loops; bit, power, modulo and
-floor-division replacements (a float raises at once) and decorator removal (numba's
-``njit`` is equivalent to the plain function) are left out.
+arithmetic (+ - * /), comparisons, boolean constants and connectives, unary minus,
+numbers and loops. Left out: bit, power, modulo and floor-division replacements (a
+float raises at once) and decorator removal (numba's ``njit`` is equivalent to the
+plain function).
 
     python .ci/mutation.py se2 [--session FILE]
 

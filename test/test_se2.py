@@ -76,3 +76,30 @@ def test_inverse_jacobian_matches_finite_differences():
         se2.wrap_angle(se2.inverse(pose + eps * unit) - se2.inverse(pose - eps * unit))
         / (2 * eps) for unit in np.eye(3)])
     np.testing.assert_allclose(se2.inverse_jacobian(pose), numeric, atol=1e-8)
+
+
+def test_pose_defaults_to_the_origin_and_rotation_is_counter_clockwise():
+    assert np.array_equal(se2.pose(), np.zeros(3))
+    theta = 0.3
+    rot = se2.rotation(theta)
+    assert np.allclose(rot @ [1.0, 0.0], [math.cos(theta), math.sin(theta)])
+    assert np.allclose(rot @ [0.0, 1.0], [-math.sin(theta), math.cos(theta)])
+
+
+@pytest.mark.parametrize('roll, pitch, yaw', [(0.1, -0.2, 0.7), (-0.3, 0.25, -2.5)])
+def test_yaw_of_a_tilted_quaternion(roll, pitch, yaw):
+    """A quaternion with roll and pitch (a tilted IMU, a 3D odometry): the ZYX yaw."""
+    def axis(angle, index):
+        q = np.zeros(4)  # (x, y, z, w)
+        q[index], q[3] = math.sin(angle / 2.0), math.cos(angle / 2.0)
+        return q
+
+    def product(a, b):
+        (ax, ay, az, aw), (bx, by, bz, bw) = a, b
+        return np.array([aw * bx + ax * bw + ay * bz - az * by,
+                         aw * by - ax * bz + ay * bw + az * bx,
+                         aw * bz + ax * by - ay * bx + az * bw,
+                         aw * bw - ax * bx - ay * by - az * bz])
+
+    q = product(product(axis(yaw, 2), axis(pitch, 1)), axis(roll, 0))
+    assert math.isclose(se2.quaternion_to_yaw(*q), yaw, abs_tol=1e-12)

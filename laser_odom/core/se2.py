@@ -105,16 +105,6 @@ def move_points(p: Pose, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def adjoint(p: Pose) -> np.ndarray:
-    """Return the 3x3 adjoint of a pose for ``[x, y, theta]`` tangent vectors.
-
-    With right-multiplied perturbations ``T exp(xi)``, ``Ad(T) xi`` is the same
-    perturbation applied on the left. It propagates covariance through composition.
-    """
-    c, s = math.cos(p[2]), math.sin(p[2])
-    return np.array([[c, -s, p[1]], [s, c, -p[0]], [0.0, 0.0, 1.0]])
-
-
 def inverse_jacobian(a: Pose) -> np.ndarray:
     """Return the Jacobian of ``inverse(a)`` with respect to ``a`` (``[x, y, theta]``).
 
