@@ -36,3 +36,23 @@ def test_featureless_corridor_is_flagged_with_honest_covariance(corridor_run, ma
     assert np.degrees(heading.max()) < 1.0
     errors = evaluate(result.trajectory, truth)
     assert errors.failed_steps == 0
+
+
+@pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
+def test_ignorance_along_a_corridor_accumulates(corridor_run, matcher):
+    """Degenerate steps compound white, their variance along the axis kept.
+
+    It is ignorance, not scan noise that the next match would cancel (the shared part
+    of the correlated error model).
+    """
+    pipeline = OdometryPipeline(PipelineConfig(matcher=matcher),
+                                events=EventLog(lambda message: None))
+    along = []
+    for scan in corridor_run.scans:
+        estimate = pipeline.process(scan)
+        if estimate is not None and estimate.status == 'degenerate':
+            along.append(estimate.twist_covariance[0, 0])
+    dt = (corridor_run.scans[1].stamp_ns - corridor_run.scans[0].stamp_ns) * 1e-9
+    assert len(along) >= 0.8 * (len(corridor_run.scans) - 1)
+    final = pipeline.pose_covariance[0, 0]
+    assert final >= 0.9 * sum(along) * dt * dt, (final, sum(along) * dt * dt)

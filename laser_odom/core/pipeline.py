@@ -218,9 +218,13 @@ class OdometryPipeline:
                 current, sweep_dt, registration, verdict)
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         # Compounding with correlated step errors (shared scans, bias): pose_uncertainty.
+        # Only a good match's error is scan noise that the next match cancels; the
+        # covariance of a degenerate match (no information along a corridor) or of a
+        # rejected one (the prediction) is ignorance, which stays: those compound white.
+        model = (StepErrorModel.of(self.matcher.config) if verdict.status == 'matched'
+                 else StepErrorModel())
         self.uncertainty = self.keyframe_uncertainty.propagate(
-            self.keyframe_pose, verdict.pose, verdict.covariance,
-            StepErrorModel.of(self.matcher.config))
+            self.keyframe_pose, verdict.pose, verdict.covariance, model)
         step = se2.relative(self.pose, new_pose)
         step_covariance = verdict.covariance
         self.pose, self.pose_covariance = new_pose, self.uncertainty.pose_covariance
