@@ -39,12 +39,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from laser_odom.core import se2
 
-POSE, NOISE, BIAS = slice(0, 3), slice(3, 6), slice(6, 9)
-"""Blocks of the joint state: pose error, newest scan's noise, bias."""
+POSE = slice(0, 3)
+"""The pose block of the joint state; then the newest scan's noise (3:6) and the bias (6:9)."""
 
 
 @dataclass(frozen=True)
@@ -103,29 +104,39 @@ class PoseUncertainty:
         ``anchor`` is the pose this state describes (the keyframe's); ``step`` and
         ``step_covariance`` are the match's estimate and covariance ``S``.
         """
-        shared = 0.5 * model.shared_scan * step_covariance
-        white = max(0.0, 1.0 - model.shared_scan - model.bias) * step_covariance
-        phi = model.bias_correlation
-        innovation = (1.0 - phi * phi) * model.bias * step_covariance
-        joint = self.joint.copy()
-        if not self.scan_known:  # the reference scan's noise and the bias: their priors
-            joint[NOISE, :] = joint[:, NOISE] = 0.0
-            joint[BIAS, :] = joint[:, BIAS] = 0.0
-            joint[NOISE, NOISE] = shared
-            joint[BIAS, BIAS] = model.bias * step_covariance
         ja, jb = se2.compose_jacobians(anchor, step)
-        transition = np.zeros((9, 9))
-        transition[POSE, POSE] = ja
-        transition[POSE, NOISE] = -jb
-        transition[POSE, BIAS] = phi * jb
-        transition[BIAS, BIAS] = phi * np.eye(3)
-        noise = np.zeros((9, 9))
-        noise[POSE, POSE] = jb @ (shared + white + innovation) @ jb.T
-        noise[POSE, NOISE] = jb @ shared
-        noise[NOISE, POSE] = shared @ jb.T
-        noise[NOISE, NOISE] = shared
-        noise[POSE, BIAS] = jb @ innovation
-        noise[BIAS, POSE] = innovation @ jb.T
-        noise[BIAS, BIAS] = innovation
-        joint = transition @ joint @ transition.T + noise
-        return PoseUncertainty(0.5 * (joint + joint.T), scan_known=True)
+        joint = _propagate(self.joint, self.scan_known, ja, jb,
+                           np.ascontiguousarray(step_covariance, dtype=float),
+                           model.shared_scan, model.bias, model.bias_correlation)
+        return PoseUncertainty(joint, scan_known=True)
+
+
+@numba.njit(cache=True, nogil=True)
+def _propagate(joint: np.ndarray, scan_known: bool, ja: np.ndarray, jb: np.ndarray,
+               step_covariance: np.ndarray, shared_scan: float, bias: float,
+               phi: float) -> np.ndarray:
+    """Compiled :meth:`PoseUncertainty.propagate`: ``F C F^T + Q`` (module docstring)."""
+    shared = 0.5 * shared_scan * step_covariance
+    white = max(0.0, 1.0 - shared_scan - bias) * step_covariance
+    innovation = (1.0 - phi * phi) * bias * step_covariance
+    joint = joint.copy()
+    if not scan_known:  # the reference scan's noise and the bias: their priors
+        joint[3:9, :] = 0.0
+        joint[:, 3:9] = 0.0
+        joint[3:6, 3:6] = shared
+        joint[6:9, 6:9] = bias * step_covariance
+    transition = np.zeros((9, 9))
+    transition[0:3, 0:3] = ja
+    transition[0:3, 3:6] = -jb
+    transition[0:3, 6:9] = phi * jb
+    transition[6:9, 6:9] = phi * np.eye(3)
+    noise = np.zeros((9, 9))
+    noise[0:3, 0:3] = jb @ (shared + white + innovation) @ jb.T
+    noise[0:3, 3:6] = jb @ shared
+    noise[3:6, 0:3] = shared @ jb.T
+    noise[3:6, 3:6] = shared
+    noise[0:3, 6:9] = jb @ innovation
+    noise[6:9, 0:3] = innovation @ jb.T
+    noise[6:9, 6:9] = innovation
+    joint = transition @ joint @ transition.T + noise
+    return 0.5 * (joint + joint.T)
