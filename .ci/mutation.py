@@ -15,8 +15,10 @@ plain function).
 
     python .ci/mutation.py se2 [--session FILE]
 
-prints the score and every surviving mutant; ``--session`` keeps the cosmic-ray
-session (a sqlite file) to resume or inspect with ``cr-report``.
+prints every surviving mutant and the score; ``--session`` keeps the cosmic-ray
+session (a sqlite file) to resume or inspect with ``cr-report``. Only committed code is
+tested (the clone): commit a new test before running again. Survivors judged
+equivalent are listed, with the reason, in ``.ci/mutation-survivors.md``.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -78,7 +81,9 @@ def config_text(module: str, work: Path, python: str, timeout: float) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run cosmic-ray over one module and print its score and surviving mutants."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        description='Mutation testing of one core module with cosmic-ray, in a temporary '
+        'clone of the committed tree.')
     parser.add_argument('module', choices=sorted(MODULES))
     parser.add_argument('--session', type=Path, default=None,
                         help='keep the cosmic-ray session here (sqlite; resumed if it exists)')
@@ -91,6 +96,9 @@ def main(argv: list[str] | None = None) -> int:
         subprocess.run(['git', 'clone', '-q', str(ROOT), str(work)], check=True)
         config = work / 'mutation.toml'
         config.write_text(config_text(args.module, work, sys.executable, args.timeout))
+        path, tests = MODULES[args.module]
+        print(f'mutating {path} (commit {head(work)}) against {" ".join(tests)}; this takes '
+              'minutes and prints nothing until the end', flush=True)
         session = (args.session or Path(temp) / 'session.sqlite').resolve()
         env = dict(os.environ)
         if not session.exists():
@@ -104,7 +112,27 @@ def main(argv: list[str] | None = None) -> int:
                                  str(session)],
                                 cwd=work, check=True, env=env, capture_output=True, text=True)
         print(report.stdout)
+        print(score_line(session))
+    print('survivors judged equivalent, with the reason: .ci/mutation-survivors.md')
     return 0
+
+
+def head(work: Path) -> str:
+    """Return the short commit id of the clone."""
+    return subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=work, check=True,
+                          capture_output=True, text=True).stdout.strip()
+
+
+def score_line(session: Path) -> str:
+    """Return 'N mutants run: K killed, S survived (score)' from a cosmic-ray session."""
+    with sqlite3.connect(session) as db:
+        counts = dict(db.execute('SELECT test_outcome, COUNT(*) FROM work_results WHERE '
+                                 'worker_outcome != ? GROUP BY test_outcome', ('SKIPPED',)))
+    killed, survived = counts.get('KILLED', 0), counts.get('SURVIVED', 0)
+    run = sum(counts.values())
+    score = f'{100.0 * killed / run:.1f} %' if run else 'n/a'
+    return (f'{run} mutants run: {killed} killed, {survived} survived, '
+            f'{run - killed - survived} incompetent (score {score})')
 
 
 if __name__ == '__main__':

@@ -103,3 +103,8 @@ def test_yaw_of_a_tilted_quaternion(roll, pitch, yaw):
 
     q = product(product(axis(yaw, 2), axis(pitch, 1)), axis(roll, 0))
     assert math.isclose(se2.quaternion_to_yaw(*q), yaw, abs_tol=1e-12)
+
+
+def test_matrix_of_a_pose_times_that_of_its_inverse_is_the_identity():
+    pose = random_pose()
+    assert np.allclose(se2.to_matrix(pose) @ se2.to_matrix(se2.inverse(pose)), np.eye(3))
