@@ -108,3 +108,10 @@ def test_yaw_of_a_tilted_quaternion(roll, pitch, yaw):
 def test_matrix_of_a_pose_times_that_of_its_inverse_is_the_identity():
     pose = random_pose()
     assert np.allclose(se2.to_matrix(pose) @ se2.to_matrix(se2.inverse(pose)), np.eye(3))
+
+
+def test_a_small_step_is_below_both_thresholds_strictly():
+    assert se2.is_small_step(np.array([3e-5, 4e-5, -9e-5]), 1e-4, 1e-4)
+    assert not se2.is_small_step(np.array([6e-5, 8e-5, 0.0]), 1e-4, 1e-4)  # |t| = 1e-4
+    assert not se2.is_small_step(np.array([0.0, 0.0, -1e-4]), 1e-4, 1e-4)
+    assert not se2.is_small_step(np.array([0.0, 0.0, 0.0]), 0.0, 1e-4)

@@ -105,6 +105,16 @@ def move_points(p: Pose, points: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def is_small_step(step: Pose, translation: float, rotation: float) -> bool:
+    """Tell whether a step moves less than ``translation`` and turns less than ``rotation``.
+
+    The convergence test of every matcher's compiled iterations (and of their coarse
+    stages, with one tolerance for both).
+    """
+    return math.hypot(step[0], step[1]) < translation and abs(step[2]) < rotation
+
+
 def inverse_jacobian(a: Pose) -> np.ndarray:
     """Return the Jacobian of ``inverse(a)`` with respect to ``a`` (``[x, y, theta]``).
 

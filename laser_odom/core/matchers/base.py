@@ -94,8 +94,3 @@ class ScanMatcher(ABC):
     def match(self, reference: ScanPoints, current: ScanPoints,
               initial_guess: se2.Pose) -> MatchResult:
         """Estimate the pose of ``current`` in the frame of ``reference``."""
-
-    def converged_step(self, step: se2.Pose) -> bool:
-        """Tell whether an iteration's increment is below the convergence thresholds."""
-        return (float(np.hypot(step[0], step[1])) < self.config.convergence_translation
-                and abs(float(step[2])) < self.config.convergence_rotation)

@@ -19,7 +19,7 @@ import numpy as np
 
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
 from laser_odom.core.nearest import nearest_by_bearing
-from laser_odom.core.se2 import move_points, relative_pose, wrap_angle
+from laser_odom.core.se2 import is_small_step, move_points, relative_pose, wrap_angle
 
 ACCELERATION_COSINE = math.cos(math.radians(10.0))
 """Successive steps closer than 10 deg in direction count as one consistent creep."""
@@ -103,9 +103,8 @@ def iterate(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndar
         updated = align_pairs(points[kept], target[nearest[kept]], np.ones(kept.shape[0]))
         step = updated - estimate
         step[2] = wrap_angle(step[2])
-        change = relative_pose(estimate, updated)
-        if (math.hypot(change[0], change[1]) < convergence_translation
-                and abs(change[2]) < convergence_rotation):
+        if is_small_step(relative_pose(estimate, updated), convergence_translation,
+                         convergence_rotation):
             return True, updated, iteration, True
         estimate = updated
         if has_previous:

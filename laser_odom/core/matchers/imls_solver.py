@@ -18,7 +18,7 @@ from laser_odom.core.matchers.imls_surface import (
 from laser_odom.core.matchers.information import (
     covariance_from_information, point_to_line_jacobians)
 from laser_odom.core.matchers.robust import inlier_mask, kernel_weights
-from laser_odom.core.se2 import move_points, wrap_angle
+from laser_odom.core.se2 import is_small_step, move_points, wrap_angle
 
 EIGEN_FLOOR = 1e-9
 """Relative eigenvalue below which a Gauss-Newton direction is left unchanged."""
@@ -189,11 +189,9 @@ def refine(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarr
         previous_step = step
         estimate = advance(estimate, gain * step)
         if approach:
-            moved_by = max(math.hypot(step[0], step[1]), abs(step[2]))
-            approach = (moved_by >= coarse_tolerance
+            approach = (not is_small_step(step, coarse_tolerance, coarse_tolerance)
                         and iterations < coarse_share * max_iterations)
-        elif (math.hypot(gain * step[0], gain * step[1]) < convergence_translation
-              and abs(gain * step[2]) < convergence_rotation):
+        elif is_small_step(gain * step, convergence_translation, convergence_rotation):
             converged = True
             break
     return estimate, converged, iterations

@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from laser_odom.core.matchers.nicp_model import linearise
-from laser_odom.core.se2 import wrap_angle
+from laser_odom.core.se2 import is_small_step, wrap_angle
 
 FAILED_PAIRS = 1
 """Status of :func:`gauss_newton`: too few pairs at some iteration."""
@@ -110,8 +110,7 @@ def gauss_newton(sorted_points: np.ndarray, bearings: np.ndarray, directions: np
         previous = step
         estimate = estimate + step
         estimate[2] = wrap_angle(estimate[2])
-        if ((math.hypot(step[0], step[1]) < convergence_translation
-             and abs(step[2]) < convergence_rotation)
+        if (is_small_step(step, convergence_translation, convergence_rotation)
                 or step @ hessian @ step < convergence_chi2):
             converged = True
             break

@@ -16,7 +16,7 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.matchers.plicp_segments import pair_and_trim
-from laser_odom.core.se2 import compose_poses, relative_pose
+from laser_odom.core.se2 import compose_poses, is_small_step, relative_pose
 
 TRANSLATION_RIDGE = 1e-12
 """Relative ridge on the translation block: an unconstrained direction (corridor axis)
@@ -166,15 +166,13 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
         updated = compose_poses(delta, estimate)
         step = relative_pose(estimate, updated)
         estimate = updated
-        moved_by = math.hypot(step[0], step[1])
         if coarse:
-            coarse = moved_by >= coarse_step or abs(step[2]) >= coarse_step
+            coarse = not is_small_step(step, coarse_step, coarse_step)
             continue
         repeated = False
         for previous in seen[:seen_count]:
             repeated = repeated or previous == signature
-        if (moved_by < convergence_translation and abs(step[2]) < convergence_rotation) \
-                or repeated:
+        if is_small_step(step, convergence_translation, convergence_rotation) or repeated:
             converged = True
             break
         seen[seen_count] = signature
