@@ -150,3 +150,33 @@ def test_acceptance_rejects_unconverged_and_poorly_paired_matches():
     assert rejection_reason(sparse, guess, config) == 'low_inlier_ratio'
     assert rejection_reason(MatchResult(**{**good.__dict__, 'inlier_ratio':
                                            config.min_inlier_ratio}), guess, config) is None
+
+
+@pytest.mark.parametrize('matcher', ['icp', 'plicp', 'nicp', 'imls'])
+def test_reference_preparation_after_publishing_changes_no_result(office_run, matcher):
+    """The node prepares the next keyframe after publishing; the result must not depend on it."""
+    scans = office_run.scans[:40]
+    prepared, lazy = (OdometryPipeline(PipelineConfig(matcher=matcher)) for _ in range(2))
+    prepared_run = run_pipeline(prepared, scans)  # prepares after every scan
+    lazy_poses = []
+    for scan in scans:
+        estimate = lazy.process(scan)
+        lazy_poses.append(estimate.pose)
+        assert not lazy.keyframe_prepared
+    np.testing.assert_array_equal(prepared_run.trajectory.poses, np.array(lazy_poses))
+    assert prepared.keyframe_prepared
+
+
+def test_icp_reference_work_moves_off_the_matching_path(office_run):
+    """The densified reference and information normals of icp are built by prepare_next."""
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    pipeline.process(office_run.scans[0])
+    keyframe = pipeline.keyframe
+    assert not any(key[0] in ('icp_dense', 'normals') for key in keyframe.cache)
+    assert pipeline.prepare_next() > 0.0
+    assert {key[0] for key in keyframe.cache} >= {'icp_dense', 'normals'}
+    assert pipeline.prepare_next() == 0.0  # once per keyframe
+    times = len(pipeline.processing_times)
+    pipeline.process(office_run.scans[1])
+    assert pipeline.keyframe is not keyframe and not pipeline.keyframe_prepared
+    assert len(pipeline.processing_times) == times + 1

@@ -89,15 +89,19 @@ def _sort_by_bearing(points: np.ndarray
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
-def _bearing_bound(directions: np.ndarray, j: int, qx: float, qy: float,
-                   radius: float) -> float:
-    """Lower bound on the distance from query ``q`` to sorted point ``j`` (its direction).
+def _bearing_bound2(directions: np.ndarray, j: int, qx: float, qy: float,
+                    radius2: float) -> float:
+    """Squared lower bound on the distance from query ``q`` to sorted point ``j``.
 
-    ``|q x u|`` (the distance from q to the ray along ``u``) within 90 deg of the query's
-    bearing, else ``|q|`` (``radius``).
+    ``(q x u)^2`` (the squared distance from q to the ray along ``u``, its direction)
+    within 90 deg of the query's bearing, else ``|q|^2`` (``radius2``). Squared, so that
+    the walks compare it with squared distances and take no square root per step.
     """
     ux, uy = directions[j, 0], directions[j, 1]
-    return abs(qx * uy - qy * ux) if qx * ux + qy * uy >= 0.0 else radius
+    if qx * ux + qy * uy >= 0.0:
+        cross = qx * uy - qy * ux
+        return cross * cross
+    return radius2
 
 
 @numba.njit(cache=True, nogil=True)
@@ -130,38 +134,41 @@ def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: n
         qx, qy = queries[i, 0], queries[i, 1]
         best2[:] = limit2
         best[:] = -1
-        radius = math.sqrt(qx * qx + qy * qy)
+        found = 0
+        radius2 = qx * qx + qy * qy
         start = np.searchsorted(bearings, math.atan2(qy, qx))
         # Walk both ways at once, always on the side whose next point may lie closer, so
-        # that the k-th distance (the reach) shrinks as early as it can.
-        reach = math.sqrt(limit2)
-        right, left = start, start - 1
-        bound_right = _bearing_bound(directions, right % n, qx, qy, radius)
-        bound_left = _bearing_bound(directions, left % n, qx, qy, radius)
+        # that the k-th distance (the reach) shrinks as early as it can. Positions wrap
+        # around the ring by comparison (no integer division in the loop).
+        right = start if start < n else 0
+        left = start - 1 if start > 0 else n - 1
+        bound_right = _bearing_bound2(directions, right, qx, qy, radius2)
+        bound_left = _bearing_bound2(directions, left, qx, qy, radius2)
         for _ in range(n):
-            if min(bound_right, bound_left) > reach:
+            if min(bound_right, bound_left) > best2[k - 1]:
                 break
             if bound_right <= bound_left:
-                j = right % n
-                right += 1
-                bound_right = _bearing_bound(directions, right % n, qx, qy, radius)
+                j = right
+                right = right + 1 if right + 1 < n else 0
+                bound_right = _bearing_bound2(directions, right, qx, qy, radius2)
             else:
-                j = left % n
-                left -= 1
-                bound_left = _bearing_bound(directions, left % n, qx, qy, radius)
+                j = left
+                left = left - 1 if left > 0 else n - 1
+                bound_left = _bearing_bound2(directions, left, qx, qy, radius2)
             dx, dy = points[j, 0] - qx, points[j, 1] - qy
             d2 = dx * dx + dy * dy
             if d2 <= best2[k - 1]:
-                slot = k
+                # Insert among the ``found`` entries only: the unfilled tail (the gate's
+                # square) needs no shifting, and nearby points mostly arrive in order.
+                slot = found
                 while slot > 0 and (d2 < best2[slot - 1] or (
-                        d2 == best2[slot - 1] and best[slot - 1] >= 0
-                        and order[j] < order[best[slot - 1]])):
+                        d2 == best2[slot - 1] and order[j] < order[best[slot - 1]])):
                     slot -= 1
                 if slot < k:
-                    for m in range(k - 1, slot, -1):
+                    for m in range(min(found, k - 1), slot, -1):
                         best2[m], best[m] = best2[m - 1], best[m - 1]
                     best2[slot], best[slot] = d2, j
-                    reach = math.sqrt(best2[k - 1])
+                    found = min(found + 1, k)
         for m in range(k):
             if best[m] >= 0:
                 distance[i, m] = math.sqrt(best2[m])
@@ -191,7 +198,7 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
     limit2 = max_distance * max_distance
     for i in range(count):
         qx, qy = queries[i, 0], queries[i, 1]
-        radius, bearing = math.sqrt(qx * qx + qy * qy), math.atan2(qy, qx)
+        radius2, bearing = qx * qx + qy * qy, math.atan2(qy, qx)
         best2, best = limit2, -1
         hint = hints[i]
         start = -1
@@ -212,7 +219,6 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
         if start < 0:
             start = np.searchsorted(bearings, bearing)
         # The walks of :func:`k_nearest_by_bearing` on scalars: k = 1 is every matcher's.
-        reach = math.sqrt(best2)
         steps = n
         for direction in (1, -1):
             j = start if direction == 1 else start - 1
@@ -222,13 +228,12 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
                     j -= n
                 elif j < 0:
                     j += n
-                if _bearing_bound(directions, j, qx, qy, radius) > reach:
+                if _bearing_bound2(directions, j, qx, qy, radius2) > best2:
                     break
                 dx, dy = points[j, 0] - qx, points[j, 1] - qy
                 d2 = dx * dx + dy * dy
                 if d2 < best2 or (d2 == best2 and best >= 0 and order[j] < order[best]):
                     best2, best = d2, j
-                    reach = math.sqrt(d2)
                 j += direction
                 visited += 1
             steps = n - visited

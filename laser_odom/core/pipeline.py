@@ -96,6 +96,7 @@ class OdometryPipeline:
         self.pose_covariance = np.zeros((3, 3)) if covariance is None else np.array(covariance)
         self.keyframe: ScanPoints | None = None
         self.keyframe_deskewed = False
+        self.keyframe_prepared = False
         self.keyframe_pose = self.pose.copy()
         self.uncertainty = PoseUncertainty.at(self.pose_covariance)
         self.keyframe_uncertainty = self.uncertainty
@@ -160,6 +161,29 @@ class OdometryPipeline:
         self.counters['processed'] += 1
         self.counters[estimate.status] += 1
         return estimate
+
+    def prepare_next(self) -> float:
+        """Do a new keyframe's reference-only work now; return the seconds it took.
+
+        Call after the result of :meth:`process` is out (published, written): matching
+        against a new keyframe needs structures that only its role as the reference
+        uses (:meth:`.ScanMatcher.prepare_reference`), and building them here keeps
+        them off the receipt-to-publish path. The result never depends on this call;
+        without it the next match builds the same on demand. The time counts in the
+        scan's processing time. A keyframe that the next match will de-skew again (its
+        sweep follows its stamp) is replaced by then, so it is not prepared.
+        """
+        keyframe = self.keyframe
+        if (keyframe is None or self.keyframe_prepared
+                or (not self.keyframe_deskewed and keyframe.times is not None)):
+            return 0.0
+        started = time.perf_counter()
+        self.matcher.prepare_reference(keyframe)
+        self.keyframe_prepared = True
+        elapsed = time.perf_counter() - started
+        if self.processing_times:
+            self.processing_times[-1] += elapsed
+        return elapsed
 
     def _elapsed(self, stamp_ns: int) -> float | None:
         """Return seconds since the last processed scan; handle repeats and time jumps."""
@@ -334,6 +358,7 @@ class OdometryPipeline:
         only measured by the next match: that match de-skews it again.
         """
         self.keyframe = current
+        self.keyframe_prepared = False
         sweeps_after_stamp = current.times is not None and float(np.median(current.times)) > 0
         self.keyframe_deskewed = motion_known and not sweeps_after_stamp
         self.keyframe_pose = self.pose.copy()

@@ -56,6 +56,7 @@ def run_pipeline(pipeline: OdometryPipeline, scans: Iterable[LaserScan],
             pipeline.last_stamp_ns, scan.stamp_ns)
         estimate = pipeline.process(scan, step, yaw)
         if estimate is not None:
+            estimate.processing_time += pipeline.prepare_next()
             stamps.append(estimate.stamp_ns)
             poses.append(estimate.pose)
             covariances.append(estimate.pose_covariance)

@@ -60,5 +60,6 @@ def warm_up(matchers: Sequence[str] | None = None) -> WarmUp:
                                     events=EventLog(lambda message: None))
         for scan in scans:
             pipeline.process(scan)
+            pipeline.prepare_next()
         _WARM.add(name)
     return WarmUp(names, time.perf_counter() - start, kernel_cache_dir())

@@ -213,6 +213,8 @@ class LaserOdomNode(Node):
             try:
                 if self._process(msg, skipped):
                     self._latencies.append(time.monotonic() - received)
+                with self._lock:  # the next keyframe's own work, once the result is out
+                    self.pipeline.prepare_next()
             except Exception as error:  # keep running: one bad scan must not stop odometry
                 if self._stop.is_set() or not self.context.ok():
                     return
@@ -348,6 +350,9 @@ def main(args: list[str] | None = None) -> int:
     code = 0
     try:
         # Built before the node so that a Ctrl-C at any later moment finds it complete.
+        import os
+        if os.environ.get('LO_SWITCH'):
+            sys.setswitchinterval(float(os.environ['LO_SWITCH']))
         executor = SingleThreadedExecutor()
         node = LaserOdomNode(params_files)
         executor.add_node(node)

@@ -135,6 +135,7 @@ def soak(args: argparse.Namespace) -> int:
     print(f'{"scans":>8} {"RSS MiB":>9} {"growth":>8} {"elapsed s":>10}')
     for count, scan in enumerate(scan_stream(args.world, args.scans, laser, 0), start=1):
         pipeline.process(scan)
+        pipeline.prepare_next()
         if count == WARMUP_SCANS:
             baseline = resident_mib()
             print(f'{count:>8} {baseline:>9.1f} {0.0:>8.1f} {time.monotonic() - started:>10.0f}')

@@ -94,3 +94,13 @@ class ScanMatcher(ABC):
     def match(self, reference: ScanPoints, current: ScanPoints,
               initial_guess: se2.Pose) -> MatchResult:
         """Estimate the pose of ``current`` in the frame of ``reference``."""
+
+    def prepare_reference(self, scan: ScanPoints) -> None:
+        """Build, in ``scan``'s cache, what only matching *against* it needs.
+
+        Work a scan needs as the current one is done by :meth:`match`; what it needs
+        only as the reference (a keyframe) can wait until the result of its own match
+        is out, so the pipeline leaves it to this call, made after publishing
+        (:meth:`.OdometryPipeline.prepare_next`). Skipped, ``match`` builds the same on
+        demand, so results never depend on it. The default has nothing to prepare.
+        """

@@ -28,6 +28,12 @@ from laser_odom.core.params import param, retune
 from laser_odom.core.scan import densify, ScanPoints
 
 
+INFORMATION_NEIGHBOURS = 20
+"""Neighbours of the reference normals behind the information (:func:`surface_information`)."""
+
+INFORMATION_RADIUS = 0.5
+"""Their neighbourhood radius [m]."""
+
 COARSE_TOLERANCE = 10.0
 """The beam-sample phase stops at 10x the convergence thresholds: its optimum is biased
 by the beam sampling by more than that, and the dense phase refines it anyway."""
@@ -99,6 +105,11 @@ class IcpMatcher(ScanMatcher):
             information=information, covariance=covariance_from_information(information),
             correspondences=len(pairs))
 
+    def prepare_reference(self, scan: ScanPoints) -> None:
+        """Densify ``scan`` and estimate the normals behind the information (once per keyframe)."""
+        self._dense_reference(scan)
+        estimate_normals(scan, INFORMATION_NEIGHBOURS, INFORMATION_RADIUS)
+
     def _dense_reference(self, reference: ScanPoints) -> tuple[np.ndarray, BearingIndex]:
         """Return the densified reference and its index, built once per reference scan."""
         cfg = self.config
@@ -136,7 +147,7 @@ def surface_information(reference: ScanPoints, moved: np.ndarray, estimate: se2.
     on the reference surface normal gives the information the geometry really holds
     (as in Censi, "An accurate closed-form estimate of ICP's covariance", ICRA 2007).
     """
-    surface = estimate_normals(reference, neighbours=20, radius=0.5)
+    surface = estimate_normals(reference, INFORMATION_NEIGHBOURS, INFORMATION_RADIUS)
     pairs = nearest_neighbours(reference.bearing_index, moved, cfg.max_correspondence_distance)
     pairs = pairs.subset(surface.valid[pairs.reference])
     if len(pairs) < 3:
