@@ -98,9 +98,8 @@ def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
     """
     if residuals.size == 0 or min_fraction >= max_fraction:
         return max_fraction  # nothing to choose: no need to sort
-    magnitude = np.sort(np.abs(residuals))
-    size = magnitude.size
-    sigma = 1.4826 * 0.5 * (magnitude[(size - 1) // 2] + magnitude[size // 2])  # the median
+    magnitude = np.abs(residuals)
+    sigma = 1.4826 * np.median(magnitude)  # a selection, not a sort
     if sigma <= 0.0:
         return max_fraction
     fraction = np.count_nonzero(magnitude <= sigma_multiplier * sigma) / magnitude.size
