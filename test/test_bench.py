@@ -279,3 +279,37 @@ def test_bad_bag_is_one_line_and_exit_2(user_bag, tmp_path, capsys):
         captured = capsys.readouterr()
         assert captured.err.count('\n') == 1 and text in captured.err, captured.err
         assert captured.err.startswith('laser_odom_bench: error: ') and captured.out == ''
+
+
+def test_nees_columns_are_finite_and_old_results_still_load(monkeypatch, tmp_path, capsys):
+    from laser_odom.core.benchmark import BenchRow
+    from laser_odom.tools.figures import FIGURES_JSON
+    dataset = simulate('office', duration=15.0, seed=3)  # 150 scans: a 100-step window
+    dataset.name = 'tiny'
+    monkeypatch.setattr(bench, 'dataset_loaders', lambda data_dir: {'tiny': lambda: dataset})
+    out = tmp_path / 'rows.json'
+    nees = ('nees_1', 'nees_10', 'nees_100', 'nees_integrated')
+    rows = {}
+    for label, extra in (('default', []), ('none', ['--reference-noise-m', '0',
+                                                    '--reference-noise-deg', '0'])):
+        assert bench.main(['--datasets', 'tiny', '--matchers', 'nicp', '--priors',
+                           'constant_velocity', '--no-search-table', '--no-progress', '--nees',
+                           '--json', str(out)] + extra) == 0
+        rows[label], = json.loads(out.read_text())['rows']
+        table = capsys.readouterr().out
+        assert 'NEES 1' in table and 'NEES int' in table
+        assert all(math.isfinite(rows[label][key]) and rows[label][key] > 0 for key in nees)
+    # 'tiny' is not one of the datasets simulated here: its reference counts as a real
+    # log's (4 cm, 1 deg), which lowers every NEES; the truth needs none.
+    assert (rows['default']['reference_noise_m'], rows['default']['reference_noise_deg']) == (
+        0.04, 1.0)
+    assert all(rows['default'][key] < rows['none'][key] for key in nees)
+    assert bench.reference_noise(bench.parse_args([]), 'sim-office-360').translation == 0.0
+    assert BenchRow.from_dict(rows['none']).as_dict() == rows['none']
+    # A result written before the NEES existed (as the committed figures were) loads.
+    committed = [{key: value for key, value in row.items()
+                  if not key.startswith(('nees_', 'reference_noise_'))}
+                 for row in json.loads(FIGURES_JSON.read_text())['rows']]
+    loaded = [BenchRow.from_dict(row) for row in committed]
+    assert all(math.isnan(row.nees_1) and row.ate == old['ate']
+               for row, old in zip(loaded, committed))

@@ -11,13 +11,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from laser_odom.core import se2
+from laser_odom.core import consistency, se2
 from laser_odom.core.config import KeyframeConfig, PipelineConfig
+from laser_odom.core.consistency import Consistency, reference_at, run_consistency
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
 from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
+from laser_odom.core.runner import run_pipeline, RunResult
 from laser_odom.core.simulation import LaserModel, simulate
+from laser_odom.core.trajectory import Trajectory
 
 LOW, HIGH = 1.5, 6.0
 WINDOWS = (1, 10, 100)
@@ -39,14 +42,17 @@ KEYFRAME_MATCHERS = [pytest.param('plicp', marks=KEYFRAME_GAP), 'nicp',
 
 @dataclass
 class Recorded:
-    """What one run published, with the truth."""
+    """What one run published (poses, covariances, per-step covariances), with the truth."""
 
-    poses: np.ndarray
-    pose_covariances: np.ndarray
-    steps: np.ndarray
-    step_covariances: np.ndarray
-    truth: np.ndarray
+    result: RunResult
+    reference: Trajectory
     model: StepErrorModel
+
+    def figures(self) -> Consistency:
+        """Mean NEES over windows of 1, 10 and 100 steps and of the integrated pose."""
+        r = self.result
+        return run_consistency(r.trajectory, r.pose_covariances, r.step_covariances,
+                               r.statuses, self.reference, self.model, windows=WINDOWS)
 
 
 @pytest.fixture(scope='module')
@@ -58,50 +64,21 @@ def runs():
 
 
 def record(run, matcher: str, keyframes: KeyframeConfig | None = None) -> Recorded:
-    """Run the pipeline; keep poses, covariances and the per-step motion and covariance."""
+    """Run the pipeline over the simulated scans; the simulator's truth is the reference."""
     config = PipelineConfig(matcher=matcher)
     if keyframes is not None:
         config = replace(config, keyframes=keyframes)
     pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
-    poses, covariances, steps, step_covariances = [], [], [], []
-    for index, scan in enumerate(run.scans):
-        estimate = pipeline.process(scan)
-        if index > 0:
-            dt = (scan.stamp_ns - run.scans[index - 1].stamp_ns) * 1e-9
-            steps.append(se2.relative(poses[-1], estimate.pose))
-            step_covariances.append(estimate.twist_covariance * dt * dt)
-        poses.append(estimate.pose)
-        covariances.append(estimate.pose_covariance)
-    truth = np.array([se2.relative(run.reference.poses[0], p) for p in run.reference.poses])
-    return Recorded(np.array(poses), np.array(covariances), np.array(steps),
-                    np.array(step_covariances), truth,
-                    StepErrorModel.of(default_config(matcher)))
-
-
-def nees(error: np.ndarray, covariance: np.ndarray) -> float:
-    """Return e^T P^-1 e with the angle wrapped."""
-    error = np.array(error, dtype=float)
-    error[2] = se2.wrap_angle(error[2])
-    return float(error @ np.linalg.solve(covariance, error))
-
-
-def window_nees(rec: Recorded, steps: int) -> float:
-    """Mean NEES of the relative poses over ``steps`` steps (windows every steps/2)."""
-    values = []
-    for start in range(0, len(rec.steps) - steps + 1, max(1, steps // 2)):
-        estimate, state = se2.pose(), PoseUncertainty.at()
-        for k in range(start, start + steps):
-            state = state.propagate(estimate, rec.steps[k], rec.step_covariances[k], rec.model)
-            estimate = se2.compose(estimate, rec.steps[k])
-        truth = se2.relative(rec.truth[start], rec.truth[start + steps])
-        values.append(nees(estimate - truth, state.pose_covariance))
-    return float(np.mean(values))
+    result = run_pipeline(pipeline, run.scans)
+    assert len(result.trajectory) == len(run.scans)
+    return Recorded(result, run.reference, StepErrorModel.of(default_config(matcher)))
 
 
 def integrated_nees(rec: Recorded) -> float:
     """Mean NEES of the published pose against the truth (after the first 10 scans)."""
-    return float(np.mean([nees(rec.poses[k] - rec.truth[k], rec.pose_covariances[k])
-                          for k in range(10, len(rec.poses))]))
+    r = rec.result
+    return consistency.integrated_nees(r.trajectory.poses, r.pose_covariances,
+                                       reference_at(r.trajectory, rec.reference))
 
 
 @pytest.fixture(scope='module')
@@ -120,9 +97,9 @@ def recordings(runs):
 @pytest.mark.parametrize('world', sorted(SEEDS))
 @pytest.mark.parametrize('matcher', MATCHERS)
 def test_relative_and_integrated_pose_nees_are_about_three(recordings, matcher, world):
-    recorded = recordings(matcher, world)
-    figures = {f'{n} steps': np.mean([window_nees(r, n) for r in recorded]) for n in WINDOWS}
-    figures['integrated'] = np.mean([integrated_nees(r) for r in recorded])
+    each = [r.figures() for r in recordings(matcher, world)]
+    figures = {f'{n} steps': np.mean([f.windows[n] for f in each]) for n in WINDOWS}
+    figures['integrated'] = np.mean([f.integrated for f in each])
     assert all(LOW <= value <= HIGH for value in figures.values()), (matcher, world, figures)
 
 

@@ -6,7 +6,7 @@ The benchmark command, the real-data tests and the closing notes all use
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 import math
 import time
 from typing import Callable
@@ -16,13 +16,16 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.config import (
     GlobalSearchConfig, MountingConfig, PipelineConfig, ScanConfig)
+from laser_odom.core.consistency import (
+    Consistency, NO_REFERENCE_NOISE, ReferenceNoise, run_consistency, WINDOWS)
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
 from laser_odom.core.metrics import evaluate
 from laser_odom.core.params import param_info
 from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.pose_uncertainty import StepErrorModel
 from laser_odom.core.priors import PriorConfig, PriorFeed
-from laser_odom.core.runner import run_pipeline
+from laser_odom.core.runner import run_pipeline, RunResult
 from laser_odom.core.search import correlative_search
 from laser_odom.core.simulation import ConstantTwist, LaserModel, simulate
 from laser_odom.core.trajectory import Dataset, Trajectory
@@ -47,6 +50,14 @@ DESKEW_MODES: tuple[str, ...] = tuple(param_info(ScanConfig, 'deskew').choices o
 
 WARMUP_SCANS = 10
 """Scans at the start of a run left out of the timing statistics (caches, imports)."""
+
+REAL_REFERENCE_NOISE = ReferenceNoise.degrees(0.04, 1.0)
+"""Noise of a real log's (SLAM-corrected) reference pose: 4 cm in x and y, 1 deg
+(``../shared/data/README.md``: 3-5 cm, 1 deg); the NEES accounts for it
+(:mod:`laser_odom.core.consistency`). A simulated dataset's reference is the truth."""
+
+NEES_FIELDS = {f'nees_{n}': n for n in WINDOWS}
+"""The row fields of the windowed NEES: field -> window length [steps]."""
 
 
 @dataclass(frozen=True)
@@ -165,10 +176,35 @@ class BenchRow:
     rejected: int
     median_ms: float
     p95_ms: float
+    nees_1: float = math.nan
+    """Mean NEES (about 3 when the covariance is honest, 3 dof) of the relative pose
+    over windows of 1 step between referenced scans (:mod:`laser_odom.core.consistency`);
+    NaN (``null``) without a reference or covariances, and in files written before."""
+    nees_10: float = math.nan
+    """The same over windows of 10 steps."""
+    nees_100: float = math.nan
+    """The same over windows of 100 steps."""
+    nees_integrated: float = math.nan
+    """Mean NEES of the published pose and covariance, relative to the first referenced
+    scan."""
+    reference_noise_m: float = 0.0
+    """Noise of each reference pose that the NEES accounts for, in x and in y [m]."""
+    reference_noise_deg: float = 0.0
+    """Noise of each reference pose that the NEES accounts for, in heading [deg]."""
 
     def as_dict(self) -> dict:
         """Return the row as a JSON-friendly dict."""
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> BenchRow:
+        """Return a row from its ``as_dict`` (a ``--json`` row).
+
+        Fields it lacks (a file written before they existed: the NEES) take their
+        defaults; unknown keys are ignored.
+        """
+        known = {f.name for f in fields(cls)}
+        return cls(**{key: value for key, value in values.items() if key in known})
 
 
 Accuracy = tuple[int, float, float, float, float, float, int | None]
@@ -186,23 +222,44 @@ def _accuracy(estimate: Trajectory, reference: Trajectory) -> Accuracy:
 
 
 def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Trajectory,
-         times: np.ndarray, rejected: int) -> BenchRow:
+         times: np.ndarray, rejected: int, consistency: Consistency | None = None,
+         noise: ReferenceNoise = NO_REFERENCE_NOISE) -> BenchRow:
     """Score an estimated trajectory against the dataset's reference (if it has one)."""
     timed = times[WARMUP_SCANS:] if times.size > 2 * WARMUP_SCANS else times
     median_ms = float(np.median(timed) * 1e3) if timed.size else float('nan')
     p95_ms = float(np.percentile(timed, 95) * 1e3) if timed.size else float('nan')
     beams = len(dataset.scans[0].ranges) if dataset.scans else 0
-    return BenchRow(dataset.name, matcher, prior, deskew, beams, len(dataset.scans),
-                    *_accuracy(estimate, dataset.reference), rejected, median_ms, p95_ms)
+    row = BenchRow(dataset.name, matcher, prior, deskew, beams, len(dataset.scans),
+                   *_accuracy(estimate, dataset.reference), rejected, median_ms, p95_ms)
+    if consistency is not None:
+        for name, n in NEES_FIELDS.items():
+            setattr(row, name, consistency.windows[n])
+        row.nees_integrated = consistency.integrated
+        row.reference_noise_m = noise.translation
+        row.reference_noise_deg = math.degrees(noise.rotation)
+    return row
+
+
+def _consistency(result: RunResult, reference: Trajectory, model: StepErrorModel,
+                 noise: ReferenceNoise) -> Consistency | None:
+    """Return the NEES of a run against the reference; None without a reference."""
+    if len(reference) == 0 or len(result.trajectory) == 0:
+        return None
+    return run_consistency(result.trajectory, result.pose_covariances,
+                           result.step_covariances, result.statuses, reference, model,
+                           noise)
 
 
 def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocity',
                   progress: Callable[[int], None] | None = None,
                   config: PipelineConfig | None = None,
-                  deskew: str | None = None) -> BenchRow:
+                  deskew: str | None = None,
+                  reference_noise: ReferenceNoise = NO_REFERENCE_NOISE) -> BenchRow:
     """Run the pipeline with ``matcher`` and bench ``prior`` over a dataset and score it.
 
     ``deskew`` overrides the configuration's ``deskew`` setting when given.
+    ``reference_noise`` is the noise of each reference pose that the NEES accounts
+    for (:data:`REAL_REFERENCE_NOISE` for a real log; none for a simulated one).
     """
     if config is None:
         config = PipelineConfig(matcher=matcher, matcher_config=default_config(matcher))
@@ -217,8 +274,11 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
     if prior == 'odom':
         feed = PriorFeed('odom', PriorConfig(), odometry=dataset.odometry)
     result = run_pipeline(pipeline, dataset.scans, priors=feed, progress=progress)
+    consistency = _consistency(result, dataset.reference,
+                               StepErrorModel.of(pipeline.matcher.config), reference_noise)
     return _row(dataset, matcher, prior, config.scan.deskew, result.trajectory,
-                result.processing_times, result.counters['rejected'])
+                result.processing_times, result.counters['rejected'], consistency,
+                reference_noise)
 
 
 def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:

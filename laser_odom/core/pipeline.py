@@ -65,6 +65,10 @@ class OdometryEstimate:
     processing_time: float = 0.0
     scan_points: np.ndarray | None = None
     """The scan's points in the base frame (N, 2), as matched."""
+    step_covariance: np.ndarray | None = None
+    """Covariance (3x3) of the match this pose comes from (the step from the previous
+    scan when matching scan to scan), before it is divided by dt^2 into the twist's;
+    None for an ``initialized`` scan."""
 
 
 class OdometryPipeline:
@@ -273,7 +277,7 @@ class OdometryPipeline:
                      else step_covariance * 1e6)
         return OdometryEstimate(stamp_ns, new_pose, self.pose_covariance.copy(), twist,
                                 twist_cov, verdict.status, registration.match,
-                                scan_points=current.points)
+                                scan_points=current.points, step_covariance=step_covariance)
 
     def _deskew_again(self, current: ScanPoints, sweep_dt: float,
                       registration: Registration, verdict: MatchVerdict

@@ -29,6 +29,12 @@ class RunResult:
     pose_covariances: np.ndarray
     processing_times: np.ndarray
     counters: Counter = field(default_factory=Counter)
+    step_covariances: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    """Per estimate, the covariance of its match (zero for an ``initialized`` scan): what
+    :mod:`laser_odom.core.consistency` propagates over windows of steps. The stamps are
+    ``trajectory.stamps_ns``."""
+    statuses: list[str] = field(default_factory=list)
+    """Per estimate, its status (``initialized``, ``matched``, ``degenerate``, ``rejected``)."""
 
     @property
     def processed(self) -> int:
@@ -51,6 +57,8 @@ def run_pipeline(pipeline: OdometryPipeline, scans: Iterable[LaserScan],
     poses: list[np.ndarray] = []
     covariances: list[np.ndarray] = []
     times: list[float] = []
+    step_covariances: list[np.ndarray] = []
+    statuses: list[str] = []
     for count, scan in enumerate(scans, start=1):
         step, yaw = (None, None) if priors is None else priors.prior_for(
             pipeline.last_stamp_ns, scan.stamp_ns)
@@ -61,6 +69,9 @@ def run_pipeline(pipeline: OdometryPipeline, scans: Iterable[LaserScan],
             poses.append(estimate.pose)
             covariances.append(estimate.pose_covariance)
             times.append(estimate.processing_time)
+            step_covariances.append(np.zeros((3, 3)) if estimate.step_covariance is None
+                                    else estimate.step_covariance)
+            statuses.append(estimate.status)
             if on_estimate is not None:
                 on_estimate(estimate)
         if progress is not None:
@@ -68,4 +79,5 @@ def run_pipeline(pipeline: OdometryPipeline, scans: Iterable[LaserScan],
     return RunResult(
         trajectory=Trajectory(np.array(stamps, dtype=np.int64), np.array(poses).reshape(-1, 3)),
         pose_covariances=np.array(covariances).reshape(-1, 3, 3),
-        processing_times=np.array(times), counters=Counter(pipeline.counters))
+        processing_times=np.array(times), counters=Counter(pipeline.counters),
+        step_covariances=np.array(step_covariances).reshape(-1, 3, 3), statuses=statuses)

@@ -14,6 +14,11 @@ the bag's ``/ground_truth`` Odometry topic. Without ``--datasets`` or ``--grid``
 the bags run. A bag without any reference is timed only: its accuracy columns and
 ``failed`` are ``n/a`` (NaN and null in ``--json``), and it has no wheel odometry row.
 
+Every scored row also holds the consistency of its published covariance (mean NEES over
+windows of 1, 10 and 100 steps and of the integrated pose, with the reference's own
+noise accounted for on real logs: ``--reference-noise-m``, ``--reference-noise-deg``);
+``--nees`` prints them as a second table, ``--json`` always has them.
+
 A progress bar is drawn on stderr only when stderr is a terminal (never into a pipe or
 a log file); ``--quiet`` leaves it out and silences warnings too (see
 :func:`warnings_silenced`), while errors are still printed.
@@ -25,6 +30,7 @@ import argparse
 from functools import lru_cache
 import json
 import logging
+import math
 from pathlib import Path
 import sys
 import time
@@ -32,8 +38,9 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 
 from laser_odom.core.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    search_timing, SearchTimingRow, SIMULATED, wheel_odometry_row)
+    REAL_REFERENCE_NOISE, search_timing, SearchTimingRow, SIMULATED, wheel_odometry_row)
 from laser_odom.core.config import pipeline_config_from_params
+from laser_odom.core.consistency import NO_REFERENCE_NOISE, ReferenceNoise
 from laser_odom.core.datasets import (
     DatasetError, discover_datasets, load_dataset, subsampled_datasets)
 from laser_odom.core.matchers import matcher_names
@@ -45,7 +52,7 @@ from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import write_text_atomically
 from laser_odom.tools.bench_table import (
-    format_search_table, format_table, machine_line, provenance)
+    format_nees_table, format_search_table, format_table, machine_line, provenance)
 from laser_odom.tools.quiet import warnings_silenced
 
 LOGGER = logging.getLogger('laser_odom.tools.bench')
@@ -133,6 +140,22 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help='no progress bar and no warnings; errors are still printed')
     parser.add_argument('--no-search-table', action='store_true',
                         help='leave out the table that times the global search alone')
+    parser.add_argument('--nees', action='store_true',
+                        help='also print the consistency table: mean NEES of the relative '
+                             'pose over windows of 1, 10 and 100 steps and of the '
+                             'integrated pose, about 3 when the published covariance is '
+                             'honest (always in --json)')
+    parser.add_argument('--reference-noise-m', type=float,
+                        default=REAL_REFERENCE_NOISE.translation, metavar='M',
+                        help='noise of each reference pose in x and in y [m] that the NEES '
+                             'accounts for, on every dataset not simulated here (real '
+                             'logs, --bag references); simulated datasets are scored '
+                             'against the truth, with none (default '
+                             f'{REAL_REFERENCE_NOISE.translation:g})')
+    parser.add_argument('--reference-noise-deg', type=float,
+                        default=math.degrees(REAL_REFERENCE_NOISE.rotation), metavar='DEG',
+                        help='the same in heading [deg] (default '
+                             f'{math.degrees(REAL_REFERENCE_NOISE.rotation):g})')
     live = parser.add_argument_group(
         'live', 'stream simulated scans over DDS to a laser_odom_node per matcher')
     live.add_argument('--live', action='store_true',
@@ -194,8 +217,21 @@ def dataset_names(args: argparse.Namespace, loaders: Mapping[str, object],
     return list(dict.fromkeys(names + list(bags)))
 
 
+def reference_noise(args: argparse.Namespace, name: str) -> ReferenceNoise:
+    """Return the noise of the dataset's reference poses: none when it is simulated here.
+
+    Anything else (a real log's SLAM-corrected poses, a bag's reference) takes
+    ``--reference-noise-m`` and ``--reference-noise-deg``.
+    """
+    if name in SIMULATED or any(name in grid for grid in GRIDS.values()):
+        return NO_REFERENCE_NOISE
+    return ReferenceNoise.degrees(args.reference_noise_m, args.reference_noise_deg)
+
+
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
     """Run every selected dataset x matcher x prior x deskew; return rows, search timings."""
+    if not (args.reference_noise_m >= 0.0 and args.reference_noise_deg >= 0.0):
+        raise ValueError('--reference-noise-m and --reference-noise-deg must be >= 0')
     loaders = dataset_loaders(args.data_dir)
     values: dict[str, Any] = {}
     if args.params_file is not None:
@@ -216,6 +252,7 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
     progress = progress_wanted(args)
     for name in names:
         dataset = loaders[name]()
+        noise = reference_noise(args, name)
         has_odometry = len(dataset.odometry) > 0
         if 'odom' in priors and has_odometry and len(dataset.reference):
             rows.append(wheel_odometry_row(dataset))
@@ -228,7 +265,8 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
                     bar = ProgressBar(label, len(dataset.scans)) if progress else None
                     config = pipeline_config_from_params({**values, 'matcher': matcher})
                     rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
-                                              config=config, deskew=deskew))
+                                              config=config, deskew=deskew,
+                                              reference_noise=noise))
         if not args.no_search_table:
             searches.append(search_timing(dataset))
     return rows, searches
@@ -253,6 +291,8 @@ def main_offline(args: argparse.Namespace) -> int:
         return 130
     print(machine_line())
     print(format_table(rows))
+    if args.nees:
+        print(format_nees_table(rows))
     if searches:
         print(format_search_table(searches))
     if args.json is not None:

@@ -96,6 +96,30 @@ def format_table(rows: Sequence[BenchRow]) -> str:
          f'{BAG_GROUND_TRUTH}): timed only'] if unscored else []))
 
 
+NEES_COLUMNS = [
+    ('dataset', 25, None, 'dataset'), ('matcher', 14, None, 'matcher'),
+    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'), ('steps', 5, None, 'steps'),
+    ('reference_noise_m', 6, 3, 'ref m'), ('reference_noise_deg', 7, 2, 'ref deg'),
+    ('nees_1', 7, 2, 'NEES 1'), ('nees_10', 8, 2, 'NEES 10'), ('nees_100', 8, 2, 'NEES 100'),
+    ('nees_integrated', 8, 2, 'NEES int'),
+]
+"""Columns of the consistency table (``--nees``): field, width, decimals, title."""
+
+
+def format_nees_table(rows: Sequence[BenchRow]) -> str:
+    """Return the rows' NEES as a second fixed-width table (the wheel odometry row has none)."""
+    scored = [row for row in rows if row.matcher != WHEEL_ODOMETRY]
+    return '\n'.join(
+        ['# consistency of the published covariance: mean NEES = e^T (P + 2R)^-1 e, about 3 '
+         'when honest (3 dof; above: too confident, below: too pessimistic)']
+        + _columns(scored, NEES_COLUMNS, 4)
+        + ['# NEES 1/10/100: relative pose over windows of at least 1, 10, 100 steps from a '
+           'referenced scan to a referenced scan (every few scans on keyframe references); '
+           'NEES int: the published pose relative to the first referenced scan; R = '
+           'diag(ref m^2, ref m^2, ref deg^2): the noise of each reference pose (0: '
+           'simulated truth)'])
+
+
 SEARCH_COLUMNS = [
     ('dataset', 25, None, 'dataset'), ('beams', 5, None, 'beams'),
     ('searches', 8, None, 'searches'), ('median_ms', 7, 2, 'med ms'),
