@@ -5,6 +5,11 @@ translational / rotational RPE, ATE after SE(2) alignment and failed steps of:
 fr079 0.025 m / 0.50 deg / 2.1 m / 1, mit-csail 0.033 m / 0.36 deg / 1.6 m / 2,
 intel 0.052 m / 0.40 deg / 3.2 m / 7. Skipped when ../shared/data is absent.
 
+These ``CSM_BAR`` figures are made by ``.ci/peers/csm_peer.py`` (CSM's ``sm_icp`` scan
+to scan with its own default parameters, the previous step repeated as the first
+guess, scored by the benchmark's code; how to build and run it, and the figures of
+other settings: ``.ci/peers/README.md``).
+
 Every matcher is also held to its own documented figures (the committed benchmark
 result, test/figures/benchmark.json, from which README and configs are rendered): no
 figure may be more than 5 % worse.
