@@ -32,12 +32,13 @@ ICP_GAP = pytest.mark.xfail(
     '~20-30); no error model fits both - the bias has to go from the matcher first')
 MATCHERS = [*HONEST, pytest.param('icp', marks=ICP_GAP)]
 KEYFRAME_GAP = pytest.mark.xfail(
-    strict=True, reason='with keyframes (0.3 m / 0.3 rad) the integrated pose of plicp and '
-    'imls comes out 2-5x too pessimistic (NEES 0.2-1.6) although each match against its '
-    'keyframe is honest (NEES 2.6): the error model is calibrated per scan, not per '
-    'keyframe transition')
-KEYFRAME_MATCHERS = [pytest.param('plicp', marks=KEYFRAME_GAP), 'nicp',
-                     pytest.param('imls', marks=KEYFRAME_GAP), pytest.param('icp', marks=ICP_GAP)]
+    strict=True, reason='with keyframes (0.3 m / 0.3 rad) the integrated pose of plicp comes '
+    'out too pessimistic (NEES 0.2-0.9) although each match against its keyframe is honest '
+    '(NEES 2.2-2.6): scan to scan its steps carry a bias along the motion that keyframe '
+    'transitions lack, and no setting of the three shares fits both (searched: shared '
+    '0.5-0.95, bias 0.002-0.05, correlation 0.95-0.999)')
+KEYFRAME_MATCHERS = [pytest.param('plicp', marks=KEYFRAME_GAP), 'nicp', 'imls',
+                     pytest.param('icp', marks=ICP_GAP)]
 
 
 @dataclass

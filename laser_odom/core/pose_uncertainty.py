@@ -27,10 +27,16 @@ is propagated with its 9x9 joint covariance:
 The shares ``a`` (``covariance_shared_scan``), ``c = covariance_bias * (1 - a)`` (a share
 of what the shared part leaves, so every setting is valid) and ``phi``
 (``covariance_bias_correlation``) are per matcher, calibrated on simulated runs so that
-the NEES of relative poses over 1, 10 and 100 steps and of the whole run is about 3.
-Against a keyframe, every match shares the keyframe's scan: each one is propagated
-from the keyframe's joint state. (The shares are calibrated scan to scan; with keyframes
-``plicp`` and ``imls`` come out too pessimistic, see ``test/test_pose_covariance.py``.)
+the NEES of relative poses over 1, 10 and 100 steps and of the whole run is about 3,
+with keyframes off and on. Against a keyframe, every match shares the keyframe's scan:
+each one is propagated from the keyframe's joint state, and only the transitions
+between keyframes compound. Both settings constrain the bias: a bias that decorrelates
+within a few dozen steps (``phi`` 0.95) fits runs scan to scan, but predicts keyframe
+transitions (several scans apart, so a few dozen transitions span a whole run) to
+wander more than they do; a small bias that persists (``phi`` 0.999: the same sign for
+a thousand matches, as a systematic under- or overestimate of the motion would) fits
+both. For ``plicp`` no setting of the three shares fits both: with keyframes it stays
+too pessimistic (see ``test/test_pose_covariance.py``).
 The pipeline applies the model to good matches only: the covariance of a degenerate or
 rejected step is ignorance, not scan noise, and compounds as white.
 """

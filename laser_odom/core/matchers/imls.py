@@ -96,10 +96,10 @@ class ImlsConfig(MatcherConfig):
     convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
     convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
     covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 1.6)
-    covariance_shared_scan: float = retune(MatcherConfig, 'covariance_shared_scan', 0.9)
-    covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.15)
+    covariance_shared_scan: float = retune(MatcherConfig, 'covariance_shared_scan', 0.98)
+    covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.25)
     covariance_bias_correlation: float = retune(MatcherConfig, 'covariance_bias_correlation',
-                                                0.95)
+                                                0.999)
     h: float = param(
         0.05, 'IMLS kernel width h [m]: W_i(x) = exp(-|x - p_i|^2 / h^2). Smaller keeps '
         'corners sharp (on a curve of radius R the surface is off by about h^2 / 4R).',
