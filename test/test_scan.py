@@ -157,6 +157,8 @@ def test_validator_bad_range_limits_fall_back_to_every_finite_positive_reading()
     np.testing.assert_array_equal(points.ranges, [0.0, 0.05, 0.5, 2.0])
     points, _ = check.check(field_scan(ranges=ranges, range_min=0.05, range_max=12.0))
     np.testing.assert_array_equal(points.ranges, [0.05, 0.5, 2.0, 12.0])
+    points, _ = check.check(field_scan(ranges=ranges, range_min=0.01, range_max=0.6))
+    np.testing.assert_array_equal(points.ranges, [0.05, 0.5])  # a short-range sensor
     assert check.events.counters['bad_range_limits'] == 0 and not said
     bad = [(math.nan, 10.0), (0.1, math.nan), (-0.1, 10.0), (5.0, 5.0), (10.0, 0.1),
            (0.0, 0.0), (0.0, -1.0), ('0.1', 10.0), (0.1, None)]
@@ -168,6 +170,9 @@ def test_validator_bad_range_limits_fall_back_to_every_finite_positive_reading()
                                       err_msg=f'{low} {high}')
     assert check.events.counters['bad_range_limits'] == len(bad)
     assert len(said) == 1 and 'range_min' in said[0]
+    check.events.clock = lambda: 1e6  # once: not said again after the throttle period
+    check.check(field_scan(ranges=ranges, range_min=math.nan))
+    assert len(said) == 1
 
 
 def test_validator_warns_once_about_intensities_of_another_length():
@@ -180,6 +185,9 @@ def test_validator_warns_once_about_intensities_of_another_length():
         assert check.check(field_scan(intensities=np.ones(count)))[1] == ''
     assert check.events.counters['intensities_length'] == 4
     assert said == ['scan has 1 intensities for 8 ranges; intensities are ignored']
+    check.events.clock = lambda: 1e6  # once: not said again after the throttle period
+    check.check(field_scan(intensities=np.ones(3)))
+    assert len(said) == 1
 
 
 def test_validator_needs_min_valid_points_readings():
@@ -218,7 +226,8 @@ def test_validator_beam_times_fall_back_on_the_last_valid_increment_of_that_beam
     assert check.check(field_scan(n=9, time_increment=math.nan))[0].times is None
     # An invalid increment is not remembered as valid.
     assert check.check(field_scan(n=9, time_increment=1.0, scan_time=0.1))[0].times is None
-    last, _ = validator(scan_stamp='last_beam')
+    # The name as a parameter file gives it: equal to the literal, not the same object.
+    last, _ = validator(scan_stamp=''.join(list('last_beam')))
     points, _ = last.check(field_scan(time_increment=1e-3))
     np.testing.assert_allclose(points.times, (np.arange(8) - 7) * 1e-3)
     off, _ = validator(deskew='off')
