@@ -9,6 +9,7 @@ inside their basin of convergence.
 from __future__ import annotations
 
 from collections import Counter, deque
+import statistics
 
 import numpy as np
 
@@ -53,7 +54,7 @@ class MotionModel:
         """
         if self._period is None:
             window = np.asarray(self.intervals)
-            median = float(np.median(window))
+            median = statistics.median(self.intervals)
             bursty = bool(np.mean(window < 0.5 * median) > JITTER_FRACTION)
             self._period = (median, float(np.mean(window)), bursty)
         return self._period

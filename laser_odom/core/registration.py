@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 import math
+import statistics
 
 import numpy as np
 
@@ -76,13 +77,13 @@ class UsualLevel:
         """Return the median recent residual, None before enough matches."""
         if len(self._residuals) < MIN_RESIDUAL_SAMPLES:
             return None
-        return float(np.median(self._residuals))
+        return statistics.median(self._residuals)
 
     def inlier_ratio(self) -> float | None:
         """Return the median recent inlier ratio, None before enough matches."""
         if len(self._inliers) < MIN_RESIDUAL_SAMPLES:
             return None
-        return float(np.median(self._inliers))
+        return statistics.median(self._inliers)
 
 
 @dataclass

@@ -56,7 +56,7 @@ from laser_odom.core.matchers.information import (
     residual_variance)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import (
-    inlier_mask, kernel_code, KERNELS, robust_weights)
+    inlier_mask, kernel_code, KERNELS, median_magnitude, robust_weights)
 from laser_odom.core.normals import estimate_normals, neighbourhoods
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
@@ -311,7 +311,7 @@ class ImlsMatcher(ScanMatcher):
         little off the walls has no surface value.
         """
         cfg = self.config
-        far = float(np.median(np.abs(sample.value))) > COARSE_FRACTION * cfg.radius
+        far = median_magnitude(sample.value) > COARSE_FRACTION * cfg.radius
         index = ref_model.index
         estimate, converged, iterations = refine(
             index.sorted_points, index.bearings, index.directions, index.order,
