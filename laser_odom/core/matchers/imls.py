@@ -47,16 +47,15 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.imls_solver import (
-    advance, fuse_directions, inverted_information, refine, ROTATION_LEVER)
+    advance, fuse_directions, inverted_information, refine, ROTATION_LEVER,
+    surface_information)
 from laser_odom.core.matchers.imls_surface import (
     implicit_surface, observability_scores, select_informative, surface_model, SurfaceModel,
     SurfaceSample)
-from laser_odom.core.matchers.information import (
-    covariance_from_information, information_from_jacobians, point_to_line_jacobians,
-    residual_variance)
+from laser_odom.core.matchers.information import covariance_from_information
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import (
-    inlier_mask, kernel_code, KERNELS, median_magnitude, robust_weights)
+    kernel_code, KERNELS, median_magnitude)
 from laser_odom.core.normals import estimate_normals, neighbourhoods
 from laser_odom.core.params import param, retune
 from laser_odom.core.scan import ScanPoints
@@ -187,11 +186,6 @@ class ImlsMatcher(ScanMatcher):
         cfg = self.config
         return implicit_surface(model, queries, cfg.h, cfg.radius if radius is None else radius,
                                 cfg.max_neighbours, cfg.min_neighbours)
-
-    def _inliers(self, residuals: np.ndarray) -> np.ndarray:
-        """Return the residuals within ``outlier_sigmas`` robust standard deviations."""
-        return inlier_mask(np.asarray(residuals, dtype=float), self.config.min_keep_fraction,
-                           self.config.outlier_sigmas)
 
     def _rotation_search(self, reference: ScanPoints, points: np.ndarray,
                          guess: se2.Pose, search_angle: float) -> se2.Pose:
@@ -346,17 +340,12 @@ class ImlsMatcher(ScanMatcher):
         if count < cfg.min_correspondences:
             return MatchResult.failure(estimate, iterations, count,
                                        'too few points on the surface at the estimate')
-        inlier = self._inliers(sample.value[ok])
-        residuals = sample.value[ok][inlier]
-        weights = robust_weights(residuals, cfg.robust_kernel, cfg.robust_scale)
-        normals = normals[ok][inlier]
-        variance = residual_variance(residuals, weights)
-        information = information_from_jacobians(
-            point_to_line_jacobians(moved[ok][inlier] - estimate[:2], normals), weights,
-            variance)
+        information, residual = surface_information(
+            moved, estimate[:2], sample.value, np.ascontiguousarray(normals), ok,
+            cfg.min_keep_fraction, cfg.outlier_sigmas, kernel_code(cfg.robust_kernel),
+            cfg.robust_scale)
         return MatchResult(
             pose=estimate, converged=converged, iterations=iterations,
-            inlier_ratio=count / len(current),
-            residual=float(np.sqrt(np.mean(np.square(residuals)))),
+            inlier_ratio=count / len(current), residual=float(residual),
             information=information, covariance=covariance_from_information(information),
             correspondences=count, extra={'selected': selected})

@@ -30,6 +30,30 @@ def point_to_line_jacobians(rotated_points: np.ndarray, normals: np.ndarray) -> 
     return jacobians
 
 
+@numba.njit(cache=True, nogil=True)
+def point_to_line_information(rotated_points: np.ndarray, normals: np.ndarray,
+                              residuals: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Return ``sum_i w_i J_i^T J_i / sigma^2`` of point-to-line residuals, in one pass.
+
+    ``J_i`` as in :func:`point_to_line_jacobians` and ``sigma^2`` as in
+    :func:`residual_variance` (three degrees of freedom removed, floored): the same
+    information as ``information_from_jacobians(point_to_line_jacobians(...), weights,
+    residual_variance(residuals, weights))``, without the intermediate arrays.
+    """
+    information = np.zeros((3, 3))
+    total = squares = 0.0
+    for i in range(residuals.shape[0]):
+        nx, ny, w = normals[i, 0], normals[i, 1], weights[i]
+        jacobian = (nx, ny, ny * rotated_points[i, 0] - nx * rotated_points[i, 1])
+        for a in range(3):
+            for b in range(3):
+                information[a, b] += w * jacobian[a] * jacobian[b]
+        total += w
+        squares += w * residuals[i] * residuals[i]
+    variance = max(squares / max(total - 3.0, 1.0), MIN_RESIDUAL_SIGMA * MIN_RESIDUAL_SIGMA)
+    return information / variance
+
+
 def point_to_point_jacobians(rotated_points: np.ndarray) -> np.ndarray:
     """Jacobians (N, 2, 3) of ``R p + t - q`` with respect to ``[x, y, theta]``."""
     n = rotated_points.shape[0]
