@@ -883,3 +883,102 @@ def test_an_ambiguous_match_covers_its_alternatives():
     assert verdict.status == 'degenerate' and match.extra['ambiguous']
     np.testing.assert_allclose(verdict.covariance, expected, atol=1e-12)
     np.testing.assert_array_equal(verdict.pose, pose)
+
+
+def test_a_stamp_equal_to_the_last_is_a_duplicate_even_as_another_int_object(office_run):
+    """Stamps from a driver are new int objects each time: equal is what counts."""
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    for scan in office_run.scans[:3]:
+        pipeline.process(scan)
+    again = replace_stamp(office_run.scans[2], int(str(office_run.scans[2].stamp_ns)))
+    assert again.stamp_ns is not office_run.scans[2].stamp_ns
+    assert pipeline.process(again) is None
+    assert pipeline.counters['duplicate_stamp'] == 1 and pipeline.counters['processed'] == 3
+
+
+def test_switching_the_matcher_type_forgets_how_matches_usually_fit(office_run):
+    """The usual residual and inlier ratio belong to one matcher's metric."""
+    from laser_odom.core.matchers import matcher_class
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    for scan in office_run.scans[:12]:
+        pipeline.process(scan)
+    usual = pipeline.registrar.usual
+    residual = usual.residual()
+    assert residual is not None and usual.inlier_ratio() is not None
+    pipeline.set_matcher(matcher_class('icp')(pipeline.matcher.config))
+    assert usual.residual() == residual  # another icp: the same metric
+    pipeline.set_matcher(matcher_class('plicp')(PipelineConfig(
+        matcher='plicp').resolved_matcher_config()))
+    assert usual.residual() is None and usual.inlier_ratio() is None
+    assert pipeline.config.matcher == 'plicp'
+
+
+def test_a_degenerate_step_compounds_white_whatever_the_matchers_shares(office_run):
+    """A degenerate match's covariance is ignorance: propagated with the white model."""
+    from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
+    config = PipelineConfig(matcher='plicp')
+    config.acceptance.degeneracy_min_information = 1e12  # every direction weak
+    pipeline = OdometryPipeline(config)
+    assert StepErrorModel.of(pipeline.matcher.config).shared_scan > 0.0
+    estimates = [pipeline.process(scan) for scan in office_run.scans[:5]]
+    white = PoseUncertainty.at(np.zeros((3, 3)))
+    for previous, estimate in zip(estimates, estimates[1:]):
+        assert estimate.status == 'degenerate'
+        step = se2.relative(previous.pose, estimate.pose)
+        white = white.propagate(previous.pose, step, estimate.step_covariance,
+                                StepErrorModel())
+        np.testing.assert_allclose(estimate.pose_covariance, white.pose_covariance,
+                                   rtol=1e-9)
+
+
+def test_a_rejected_scan_becomes_the_reference_even_between_keyframes(office_run):
+    """After a rejection the current scan is the reference, whatever the keyframe rules."""
+    config = PipelineConfig(matcher='icp')
+    config.search.global_search = 'off'
+    config.keyframes.keyframe_distance = 5.0
+    pipeline = OdometryPipeline(config)
+    for scan in office_run.scans[:4]:
+        pipeline.process(scan)
+    assert pipeline.keyframe.stamp_ns == office_run.scans[0].stamp_ns
+    pipeline.config.acceptance.max_correction_linear = 1e-9
+    assert pipeline.process(office_run.scans[4]).status == 'rejected'
+    assert pipeline.keyframe.stamp_ns == office_run.scans[4].stamp_ns
+    np.testing.assert_array_equal(pipeline.keyframe_pose, pipeline.pose)
+
+
+@pytest.mark.parametrize('rejected_motion', ['predict', 'hold'])
+def test_a_rejected_match_is_not_deskewed_and_matched_again(rejected_motion):
+    """A rejection stands: the pose it gives (prediction or hold) is not re-matched."""
+    data = swept_run('first')
+    pipeline, _ = swept_pipeline(global_search='off')
+    pipeline.config.acceptance.rejected_motion = rejected_motion
+    for scan in data.scans[:4]:
+        pipeline.process(scan)
+    real = pipeline.matcher.match
+    results = []
+
+    def first_fails(reference, current, guess):
+        results.append(real(reference, current, guess))
+        if len(results) == 1:
+            results[-1].converged = False
+        return results[-1]
+    pipeline.matcher.match = first_fails
+    assert pipeline.process(data.scans[4]).status == 'rejected'
+    assert len(results) == 1
+
+
+def test_a_keyframe_with_a_known_sweep_is_not_deskewed_again():
+    """Stamped at the last beam, a held keyframe keeps its de-skewing when scans re-match."""
+    data = swept_run('last')
+    pipeline, calls = swept_pipeline(stamp='last_beam')
+    pipeline.config.keyframes.keyframe_distance = 10.0
+    pipeline.process(data.scans[0])
+    pipeline.process(data.scans[1])  # the first match measures the reference's sweep
+    keyframe = pipeline.keyframe
+    counts = []
+    for scan in data.scans[2:7]:
+        before = len(calls)
+        assert pipeline.process(scan).status == 'matched'
+        counts.append(len(calls) - before)
+        assert pipeline.keyframe is keyframe
+    assert max(counts) >= 2  # some scans were de-skewed and matched again
