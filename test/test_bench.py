@@ -313,3 +313,18 @@ def test_nees_columns_are_finite_and_old_results_still_load(monkeypatch, tmp_pat
     loaded = [BenchRow.from_dict(row) for row in committed]
     assert all(math.isnan(row.nees_1) and row.ate == old['ate']
                for row, old in zip(loaded, committed))
+
+
+@pytest.mark.parametrize('arguments, expected', [
+    (['--reference-noise-deg', 'inf'], '--reference-noise-deg must be a finite number >= 0'),
+    (['--reference-noise-m', 'nan'], '--reference-noise-m must be a finite number >= 0'),
+    (['--reference-noise-m', '-0.01'], '--reference-noise-m must be a finite number >= 0'),
+    (['--datasets', 'fr079', '--data-dir', '/nonexistent'],
+     'fr079: a real log, not found under /nonexistent (pass --data-dir DIR'),
+])
+def test_bad_reference_noise_or_a_missing_real_log_is_one_named_error(
+        capsys, arguments, expected):
+    assert main(['--datasets', 'sim-office-360', '--matchers', 'plicp', '--no-progress',
+                 *arguments]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.count('\n') == 0 and expected in error, error

@@ -42,7 +42,8 @@ from laser_odom.core.benchmark import (
 from laser_odom.core.config import pipeline_config_from_params
 from laser_odom.core.consistency import NO_REFERENCE_NOISE, ReferenceNoise
 from laser_odom.core.datasets import (
-    DatasetError, discover_datasets, load_dataset, subsampled_datasets)
+    DatasetError, discover_datasets, KNOWN_DATASETS, load_dataset, SUBSAMPLED_DATASETS,
+    subsampled_datasets)
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.params import ParameterError
 from laser_odom.core.trajectory import Dataset
@@ -206,6 +207,13 @@ def dataset_names(args: argparse.Namespace, loaders: Mapping[str, object],
     """
     grids = _split(args.grid, list(GRIDS), 'grid') if args.grid else []
     if args.datasets:
+        absent = [name for name in args.datasets.split(',') if name.strip() not in loaders
+                  and name.strip() in {*KNOWN_DATASETS, *SUBSAMPLED_DATASETS}]
+        if absent:
+            folders = sorted({path.split('/')[0] + '/' for path in KNOWN_DATASETS.values()})
+            raise ValueError(f'{", ".join(absent)}: a real log, not found under '
+                             f'{args.data_dir} (pass --data-dir DIR, the folder that holds '
+                             f'{", ".join(folders)})')
         names = _split(args.datasets, list(loaders), 'dataset')
     elif grids or bags:
         names = []
@@ -230,8 +238,10 @@ def reference_noise(args: argparse.Namespace, name: str) -> ReferenceNoise:
 
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
     """Run every selected dataset x matcher x prior x deskew; return rows, search timings."""
-    if not (args.reference_noise_m >= 0.0 and args.reference_noise_deg >= 0.0):
-        raise ValueError('--reference-noise-m and --reference-noise-deg must be >= 0')
+    for option, value in (('--reference-noise-m', args.reference_noise_m),
+                          ('--reference-noise-deg', args.reference_noise_deg)):
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f'{option} must be a finite number >= 0, got {value:g}')
     loaders = dataset_loaders(args.data_dir)
     values: dict[str, Any] = {}
     if args.params_file is not None:
