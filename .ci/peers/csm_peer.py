@@ -68,6 +68,12 @@ MATCHER = 'csm-plicp'
 """The matcher name of CSM's rows."""
 
 
+def fail(message: str) -> None:
+    """Say what went wrong in one line and exit with 2, as the project's tools do."""
+    print(f'csm_peer: error: {message}', file=sys.stderr)
+    sys.exit(2)
+
+
 def have_system_gsl() -> bool:
     """Tell whether pkg-config knows a GSL (Ubuntu: libgsl-dev)."""
     if shutil.which('pkg-config') is None:
@@ -84,8 +90,8 @@ def build(csm_src: Path, build_dir: Path, gsl_prefix: Path | None,
         if not (gsl_prefix / 'lib' / 'libgsl.a').is_file():
             subprocess.run(make + [f'GSL_SRC={gsl_src}', 'gsl'], check=True)
     if gsl_prefix is None and not have_system_gsl():
-        sys.exit('no GSL: install libgsl-dev (pkg-config gsl), or pass --gsl-prefix (an '
-                 'installed GSL) or --gsl-src (a CMake GSL source tree, e.g. ampl/gsl)')
+        fail('no GSL: install libgsl-dev (pkg-config gsl), or pass --gsl-prefix (an '
+             'installed GSL) or --gsl-src (a CMake GSL source tree, e.g. ampl/gsl)')
     if gsl_prefix is not None:
         make.append(f'GSL_PREFIX={gsl_prefix}')
     subprocess.run(make + ['driver'], check=True)
@@ -140,7 +146,7 @@ def run_driver(driver: Path, scans: Path, params: list[str]) -> np.ndarray:
     done = subprocess.run([str(driver), str(scans), *params], stdout=subprocess.PIPE,
                           stderr=subprocess.PIPE, text=True)
     if done.returncode != 0:
-        sys.exit(f'csm_driver failed ({done.returncode}): {done.stderr[-2000:]}')
+        fail(f'csm_driver failed ({done.returncode}): {done.stderr[-2000:]}')
     rows = [line.split() for line in done.stdout.splitlines() if not line.startswith('#')]
     return np.array(rows, dtype=float)
 
@@ -153,7 +159,7 @@ def score(dataset: Dataset, driver: Path, mode: str, params: list[str],
     write_scans(dataset, cv_ratios(stamps, mode, MotionConfig()), scans)
     rows = run_driver(driver, scans, params)
     if len(rows) != len(stamps):
-        sys.exit(f'{dataset.name}: {len(rows)} poses for {len(stamps)} scans')
+        fail(f'{dataset.name}: {len(rows)} poses for {len(stamps)} scans')
     estimate = Trajectory(stamps, rows[:, 1:4])
     matched = rows[1:]
     invalid = int(np.count_nonzero(matched[:, 4] == 0))
@@ -170,8 +176,10 @@ def main(argv: list[str] | None = None) -> int:
                         help='an installed GSL (default: pkg-config gsl)')
     parser.add_argument('--gsl-src', type=Path,
                         help='a CMake GSL source tree (ampl/gsl), built if no GSL is found')
-    parser.add_argument('--build-dir', type=Path, default=DEFAULT_BUILD)
-    parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA)
+    parser.add_argument('--build-dir', type=Path, default=DEFAULT_BUILD,
+                        help=f'where CSM, GSL and the driver are built (default {DEFAULT_BUILD})')
+    parser.add_argument('--data-dir', type=Path, default=DEFAULT_DATA,
+                        help=f'the real logs (default {DEFAULT_DATA})')
     parser.add_argument('--dataset', action='append', choices=DATASETS,
                         help='a log to score (repeatable; default: all three)')
     parser.add_argument('--dt', choices=GUESSES, default='scan',
@@ -184,15 +192,23 @@ def main(argv: list[str] | None = None) -> int:
                         help='override a CSM parameter (csm_driver --params lists them)')
     parser.add_argument('--json', type=Path, help='also write the rows to this file')
     args = parser.parse_args(argv)
-
-    driver = build(args.csm_src.resolve(), args.build_dir.resolve(),
-                   args.gsl_prefix.resolve() if args.gsl_prefix else None,
-                   args.gsl_src.resolve() if args.gsl_src else None)
+    for option, folder in (('--csm-src', args.csm_src), ('--gsl-prefix', args.gsl_prefix),
+                           ('--gsl-src', args.gsl_src), ('--data-dir', args.data_dir)):
+        if folder is not None and not folder.is_dir():
+            parser.error(f'{option} {folder}: no such directory')
+    try:
+        driver = build(args.csm_src.resolve(), args.build_dir.resolve(),
+                       args.gsl_prefix.resolve() if args.gsl_prefix else None,
+                       args.gsl_src.resolve() if args.gsl_src else None)
+    except subprocess.CalledProcessError as error:
+        print(f'csm_peer: error: the build failed ({" ".join(error.cmd[-1:])} target, exit '
+              f'{error.returncode}); its output is above', file=sys.stderr)
+        return 2
     found = discover_datasets(args.data_dir)
     names = args.dataset or list(DATASETS)
     missing = [name for name in names if name not in found]
     if missing:
-        sys.exit(f'not under {args.data_dir}: {", ".join(missing)}')
+        fail(f'not under {args.data_dir}: {", ".join(missing)}')
 
     results = []
     print(f'CSM sm_icp (--preset {args.preset}), constant-velocity guess (--dt {args.dt})'
