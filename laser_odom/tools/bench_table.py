@@ -116,7 +116,8 @@ def format_nees_table(rows: Sequence[BenchRow]) -> str:
         + ['# NEES 1/10/100: relative pose over windows of at least 1, 10, 100 steps from a '
            'referenced scan to a referenced scan (every few scans on keyframe references); '
            'NEES int: the published pose relative to the first referenced scan; R = '
-           'diag(ref m^2, ref m^2, ref deg^2): the noise of each reference pose (0: '
+           'diag(ref m^2, ref m^2, (ref deg * pi / 180)^2): the noise of each reference '
+           'pose (0: '
            'simulated truth)'])
 
 
