@@ -156,7 +156,7 @@ def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed:
     def progress(count: int) -> None:
         record.scans_read = count
         if not quiet and count % PROGRESS_EVERY == 0:
-            print(f'{count} scans replayed', flush=True)
+            print(f'{count} scans replayed so far', file=sys.stderr, flush=True)
 
     def on_estimate(estimate: OdometryEstimate) -> None:
         record.add(estimate.stamp_ns, estimate.pose, estimate.pose_covariance,

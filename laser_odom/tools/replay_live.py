@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 from functools import partial
+import sys
 import time
 from typing import Any, Callable, Iterator
 
@@ -205,7 +206,7 @@ def _record_answer(record: ReplayRecord, msg: Odometry, seconds: float) -> None:
 def _progress(record: ReplayRecord, args: argparse.Namespace) -> None:
     """Print a progress line every 500 scans (unless --quiet)."""
     if not args.quiet and record.scans_read % 500 == 0:
-        print(f'{record.scans_read} scans replayed (live)', flush=True)
+        print(f'{record.scans_read} scans replayed so far (live)', file=sys.stderr, flush=True)
 
 
 def _run_lock_step(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
