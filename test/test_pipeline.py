@@ -982,3 +982,11 @@ def test_a_keyframe_with_a_known_sweep_is_not_deskewed_again():
         counts.append(len(calls) - before)
         assert pipeline.keyframe is keyframe
     assert max(counts) >= 2  # some scans were de-skewed and matched again
+
+
+def test_processing_time_statistics_cover_the_last_thousand_scans():
+    """The node's timing diagnostics read the last TIMING_WINDOW = 1000 processing times."""
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'))
+    pipeline.processing_times.extend(float(k) for k in range(1200))
+    assert len(pipeline.processing_times) == 1000
+    assert pipeline.processing_times[0] == 200.0 and pipeline.processing_times[-1] == 1199.0
