@@ -990,3 +990,107 @@ def test_processing_time_statistics_cover_the_last_thousand_scans():
     pipeline.processing_times.extend(float(k) for k in range(1200))
     assert len(pipeline.processing_times) == 1000
     assert pipeline.processing_times[0] == 200.0 and pipeline.processing_times[-1] == 1199.0
+
+
+def test_an_odometry_prior_is_trusted_and_a_rejection_advances_by_it(office_run):
+    """With prior odom the matches start from the wheel odometry: no search after the first.
+
+    A rejection then advances by that prediction, and says so.
+    """
+    from laser_odom.core.events import EventLog
+    said = []
+    config = PipelineConfig(matcher='icp')
+    config.motion.prior = 'odom'
+    pipeline = OdometryPipeline(config, events=EventLog(said.append))
+    truth = office_run.reference.poses
+    for k, scan in enumerate(office_run.scans[:6]):
+        prior = se2.relative(truth[k - 1], truth[k]) if k else None
+        estimate = pipeline.process(scan, prior_step=prior)
+        assert estimate.status in ('initialized', 'matched')
+    assert pipeline.counters['search_reset'] == 1
+    assert pipeline.counters['search_no_prior'] == 0
+    pipeline.config.acceptance.max_correction_linear = 1e-9
+    pipeline.config.search.global_search = 'off'
+    prior = se2.relative(truth[5], truth[6])
+    before = pipeline.pose.copy()
+    assert pipeline.process(office_run.scans[6], prior_step=prior).status == 'rejected'
+    np.testing.assert_allclose(pipeline.pose, se2.compose(before, prior), atol=1e-12)
+    assert said[-1].endswith('; advancing by the prediction')
+
+
+def test_settings_named_as_a_parameter_file_gives_them_act_like_the_literals(office_run):
+    """Equal strings that are not the same object: prior none, predict, the matcher name."""
+    from laser_odom.core.events import EventLog
+    said = []
+    config = PipelineConfig(matcher='icp')
+    config.motion.prior = ''.join(list('none'))
+    config.acceptance.rejected_motion = ''.join(list('predict'))
+    pipeline = OdometryPipeline(config, events=EventLog(said.append))
+    for scan in office_run.scans[:4]:
+        pipeline.process(scan)
+    assert pipeline.counters['search_no_prior'] == 3  # every match searched
+    pipeline.config.acceptance.max_correction_linear = 1e-9
+    pipeline.config.search.global_search = 'off'
+    assert pipeline.process(office_run.scans[4]).status == 'rejected'
+    assert said[-1].endswith('; holding the pose (prior none: no prediction to advance by)')
+    matcher = pipeline.matcher
+    import copy
+    same = copy.deepcopy(pipeline.config)
+    same.matcher = ''.join(list('icp'))
+    pipeline.configure(same)
+    assert pipeline.matcher is matcher
+    predict = OdometryPipeline(PipelineConfig(matcher='icp'), events=EventLog(said.append))
+    predict.config.acceptance.rejected_motion = ''.join(list('predict'))
+    predict.config.acceptance.max_correction_linear = 1e-9
+    predict.config.search.global_search = 'off'
+    predict.process(office_run.scans[0])
+    assert predict.process(office_run.scans[1]).status == 'rejected'
+    assert said[-1].endswith('; advancing by the prediction')
+
+
+def test_switching_to_any_other_matcher_type_forgets_the_usual_fit(office_run):
+    """From plicp to icp as from icp to plicp: the usual fit is forgotten."""
+    from laser_odom.core.matchers import matcher_class
+    pipeline = OdometryPipeline(PipelineConfig(matcher='plicp'))
+    for scan in office_run.scans[:12]:
+        pipeline.process(scan)
+    assert pipeline.registrar.usual.residual() is not None
+    pipeline.set_matcher(matcher_class('icp')(PipelineConfig(
+        matcher='icp').resolved_matcher_config()))
+    assert pipeline.registrar.usual.residual() is None
+
+
+def test_a_rejected_keyframe_is_not_prepared_its_sweep_is_unknown():
+    """Stamped at the last beam, a scan that replaced a rejected match is de-skewed again."""
+    data = swept_run('last')
+    pipeline, _ = swept_pipeline(stamp='last_beam', global_search='off')
+    for scan in data.scans[:3]:
+        pipeline.process(scan)
+    assert pipeline.prepare_next() > 0.0
+    pipeline.config.acceptance.max_correction_linear = 1e-9
+    assert pipeline.process(data.scans[3]).status == 'rejected'
+    assert pipeline.keyframe.stamp_ns == data.scans[3].stamp_ns
+    assert pipeline.prepare_next() == 0.0 and not pipeline.keyframe_prepared
+
+
+def test_the_global_search_is_said_with_its_trigger_and_the_local_failure(office_run):
+    """A search after a gap says the trigger; after a failed local match also the failure."""
+    from laser_odom.core.events import EventLog
+    said = []
+    pipeline = OdometryPipeline(PipelineConfig(matcher='icp'), events=EventLog(said.append))
+    scans = office_run.scans
+    for scan in scans[:3]:
+        pipeline.process(scan)
+    late = replace_stamp(scans[3], scans[2].stamp_ns + 1_500_000_000)
+    pipeline.process(late)
+    at = f't={late.stamp_ns * 1e-9:.3f}'
+    assert said[-1].startswith(f'global search at {at}: the motion prior was dropped after a '
+                               'gap between scans; best of ')
+    pipeline.config.acceptance.max_correction_linear = 1e-9  # the local match fails
+    shifted = replace_stamp(scans[4], late.stamp_ns + 100_000_000)
+    pipeline.process(shifted)
+    at = f't={shifted.stamp_ns * 1e-9:.3f}'
+    searches = [line for line in said if line.startswith(f'global search at {at}')]
+    assert len(searches) == 1
+    assert searches[0].startswith(f'global search at {at}: the match from the prediction '
+                                  'failed (')
