@@ -817,6 +817,8 @@ def test_judge_match_rejects_to_the_prediction_or_holds():
         assert verdict.status == 'rejected' and match.extra['rejection'] == 'not_converged'
         np.testing.assert_array_equal(verdict.pose, expected)
         np.testing.assert_array_equal(verdict.covariance, np.diag(REJECTED_VARIANCE))
+        # The declared values: a standard deviation of 0.5 m and 0.5 rad per axis.
+        np.testing.assert_array_equal(verdict.covariance, np.diag([0.25, 0.25, 0.25]))
     # A searched match is judged by the window: 2 m off the guess is outside 1.5 m + 0.1.
     config.acceptance.max_correction_linear = 5.0
     far = good_match(guess + np.array([1.65, 0.0, 0.0]))
@@ -847,6 +849,7 @@ def test_judge_match_keeps_the_prediction_along_a_degenerate_direction():
     np.testing.assert_allclose(verdict.pose, [1.0, 2.2, -3.1], atol=1e-12)
     expected = np.diag([DEGENERATE_VARIANCE, 1e-4, 1.0 / 2e4 / length ** 2])
     np.testing.assert_allclose(verdict.covariance, expected, rtol=1e-9, atol=1e-15)
+    assert verdict.covariance[0, 0] == 1.0  # as uncertain as the prior: 1 m^2
     untrusted = good_match(pose, information=information)
     verdict = judge_match(Registration(untrusted, trigger='reset', trusted=False), guess,
                           config, length)
