@@ -802,6 +802,9 @@ def test_each_rejection_is_described_with_its_numbers():
         '1.00 m / 30.0 deg from the prediction, outside the search window +-1.50 m / '
         '+-45.0 deg')
     assert describe_rejection('non_finite', match, guess, config) == 'non finite'
+    # A reason without figures of its own (a local failure against a usual level of 0).
+    assert describe_rejection('high_residual', match, guess, config) == 'high residual'
+    assert describe_rejection('few_inliers', match, guess, config) == 'few inliers'
 
 
 def test_judge_match_rejects_to_the_prediction_or_holds():
