@@ -1100,3 +1100,19 @@ def test_the_global_search_is_said_with_its_trigger_and_the_local_failure(office
     assert len(searches) == 1
     assert searches[0].startswith(f'global search at {at}: the match from the prediction '
                                   'failed (')
+
+
+def test_a_direction_without_information_keeps_a_finite_variance():
+    """With degeneracy_min_information 0, a zero eigenvalue's variance is 1e300, not 1 / 0.
+
+    A zero eigenvalue is then not weak; a slightly negative one is (DEGENERATE_VARIANCE).
+    """
+    from laser_odom.core.acceptance import judge_match
+    from laser_odom.core.registration import Registration
+    config = PipelineConfig()
+    config.acceptance.degeneracy_min_information = 0.0
+    match = good_match(se2.pose(0.01, 0.0, 0.0), information=np.diag([-1e-9, 0.0, 1e4]))
+    verdict = judge_match(Registration(match), se2.pose(), config, 1.0)
+    assert verdict.status == 'degenerate'
+    assert np.all(np.isfinite(verdict.covariance))
+    np.testing.assert_allclose(np.diag(verdict.covariance), [1.0, 1e300, 1e-4], rtol=1e-12)
