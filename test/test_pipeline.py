@@ -805,6 +805,7 @@ def test_each_rejection_is_described_with_its_numbers():
     # A reason without figures of its own (a local failure against a usual level of 0).
     assert describe_rejection('high_residual', match, guess, config) == 'high residual'
     assert describe_rejection('few_inliers', match, guess, config) == 'few inliers'
+    assert describe_rejection('unknown', match, guess, config) == 'unknown'
 
 
 def test_judge_match_rejects_to_the_prediction_or_holds():
@@ -813,7 +814,9 @@ def test_judge_match_rejects_to_the_prediction_or_holds():
     from laser_odom.core.registration import Registration
     config = PipelineConfig()
     guess = se2.pose(0.1, 0.02, 0.01)
-    for motion, expected in (('predict', guess), ('hold', se2.pose())):
+    # ''.join: the name as a parameter file gives it (equal, not the same object).
+    for motion, expected in (('predict', guess), (''.join(list('predict')), guess),
+                             ('hold', se2.pose())):
         config.acceptance.rejected_motion = motion
         match = good_match(guess, converged=False)
         verdict = judge_match(Registration(match), guess, config)
