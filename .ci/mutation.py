@@ -37,11 +37,14 @@ M = f'{CORE}/matchers'
 MODULES = {
     'se2': (f'{CORE}/se2.py', ['test/test_se2.py']),
     'acceptance': (f'{CORE}/acceptance.py',
-                   ['test/test_pipeline.py', 'test/test_degeneracy.py',
-                    'test/test_global_search.py', 'test/test_large_motion.py']),
+                   ['test/test_acceptance.py', 'test/test_pipeline.py',
+                    'test/test_degeneracy.py', 'test/test_global_search.py',
+                    'test/test_large_motion.py']),
     'validation': (f'{CORE}/validation.py', ['test/test_scan.py', 'test/test_pipeline.py']),
-    'motion': (f'{CORE}/motion.py', ['test/test_pipeline.py', 'test/test_priors.py']),
-    'pipeline': (f'{CORE}/pipeline.py', ['test/test_pipeline.py']),
+    'motion': (f'{CORE}/motion.py',
+               ['test/test_motion.py', 'test/test_pipeline.py', 'test/test_priors.py']),
+    'pipeline': (f'{CORE}/pipeline.py',
+                 ['test/test_pipeline.py', 'test/test_deskew_pipeline.py']),
     'pose_uncertainty': (f'{CORE}/pose_uncertainty.py', [
         f'test/test_pose_covariance.py::test_{name}' for name in (
             'white_errors_compound_as_smith_self_and_cheeseman',

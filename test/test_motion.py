@@ -1,0 +1,123 @@
+"""The motion model: each prior and its fallback, the scan gap, the velocity and scan period."""
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+
+
+def motion_model(prior: str = 'constant_velocity', max_scan_gap: float = 1.0):
+    from laser_odom.core.config import MotionConfig
+    from laser_odom.core.motion import MotionModel
+    return MotionModel(MotionConfig(prior=prior, max_scan_gap=max_scan_gap))
+
+
+def test_motion_model_predicts_from_the_configured_prior():
+    """Each prior gives its own guess; a missing or non-finite one falls back and is counted."""
+    from collections import Counter
+    velocity = np.array([0.5, -0.2, 0.3])
+    odom_step, yaw = se2.pose(0.04, 0.01, -0.02), 0.07
+    expected = {'none': [0.0, 0.0, 0.0], 'constant_velocity': [0.05, -0.02, 0.03],
+                'odom': odom_step, 'imu': [0.05, -0.02, yaw]}
+    for prior, guess in expected.items():
+        # The name as a parameter file gives it: equal to the literal, not the same object.
+        for name in (prior, ''.join(list(prior))):
+            model = motion_model(name)
+            model.velocity = velocity.copy()
+            counters = Counter()
+            predicted = model.predict(0.1, odom_step, yaw, counters)
+            assert predicted.shape == (3,)
+            np.testing.assert_allclose(predicted, guess, atol=1e-12, err_msg=prior)
+            assert counters['prior_missing'] == 0, prior
+    for prior in ('odom', 'imu'):
+        model = motion_model(prior)
+        model.velocity = velocity.copy()
+        counters = Counter()
+        for missing_step, missing_yaw in ((None, None), (se2.pose(math.nan), math.nan)):
+            predicted = model.predict(0.1, missing_step, missing_yaw, counters)
+            np.testing.assert_allclose(predicted, [0.05, -0.02, 0.03], atol=1e-12)
+        assert counters['prior_missing'] == 2, prior
+        np.testing.assert_allclose(model.predict(0.1), [0.05, -0.02, 0.03], atol=1e-12)
+        assert counters['prior_missing'] == 2  # no counters given: nothing counted
+
+
+def test_motion_model_predicts_nothing_over_a_gap_longer_than_max_scan_gap():
+    """A gap of exactly max_scan_gap is still predicted; a longer one is not."""
+    for prior in ('constant_velocity', 'odom', 'imu'):
+        model = motion_model(prior, max_scan_gap=0.5)
+        model.velocity = np.array([1.0, 0.0, 0.2])
+        assert not model.gap_exceeded(0.5) and model.gap_exceeded(0.5 + 1e-9)
+        np.testing.assert_allclose(model.predict(0.5, se2.pose(0.5, 0.0, 0.1), 0.1),
+                                   [0.5, 0.0, 0.1], atol=1e-12)
+        np.testing.assert_array_equal(
+            model.predict(0.5 + 1e-9, se2.pose(0.5, 0.0, 0.1), 0.1), [0.0, 0.0, 0.0])
+
+
+def test_motion_model_velocity_is_the_step_over_its_interval():
+    """Velocity = step / dt; a gap, dt <= 0 or a non-finite step stop it; dt < 5 ms keeps it.
+
+    An interval of exactly MIN_VELOCITY_DT or max_scan_gap still gives a velocity.
+    """
+    from laser_odom.core.motion import MIN_VELOCITY_DT
+    model = motion_model(max_scan_gap=0.5)
+    np.testing.assert_array_equal(model.velocity, [0.0, 0.0, 0.0])
+    step = se2.pose(0.02, 0.01, 0.004)
+    model.update(step, 0.5)  # a step of exactly max_scan_gap counts
+    np.testing.assert_allclose(model.velocity, step / 0.5, rtol=1e-12)
+    for stop_dt, stop_step in ((0.5 + 1e-9, step), (-0.1, step), (0.0, step),
+                               (0.1, se2.pose(math.inf))):
+        model.update(step, 0.1)
+        np.testing.assert_allclose(model.velocity, step / 0.1, rtol=1e-12)
+        model.update(stop_step, stop_dt)
+        np.testing.assert_array_equal(model.velocity, [0.0, 0.0, 0.0])
+    fresh = motion_model()
+    fresh.update(step, MIN_VELOCITY_DT)  # fewer than five intervals: dt is used as it is
+    np.testing.assert_allclose(fresh.velocity, step / MIN_VELOCITY_DT, rtol=1e-12)
+    fresh.update(se2.pose(1.0, 1.0, 1.0), 0.999 * MIN_VELOCITY_DT)
+    np.testing.assert_allclose(fresh.velocity, step / MIN_VELOCITY_DT, rtol=1e-12)
+    fresh.update(step, 2.0 * MIN_VELOCITY_DT)
+    np.testing.assert_allclose(fresh.velocity, step / (2.0 * MIN_VELOCITY_DT), rtol=1e-12)
+    fresh.reset()
+    np.testing.assert_array_equal(fresh.predict(0.1), [0.0, 0.0, 0.0])
+
+
+def test_motion_model_scan_period_from_the_last_positive_intervals():
+    """From five recorded intervals on, one under half the median is taken as the median.
+
+    Non-positive intervals are not recorded; the period covers the last PERIOD_WINDOW.
+    """
+    from laser_odom.core.motion import PERIOD_WINDOW
+    model = motion_model()
+    for _ in range(4):
+        model.update(se2.pose(), 0.1)
+    model.update(se2.pose(), -0.05)
+    model.update(se2.pose(), 0.0)
+    assert model.effective_dt(0.01) == 0.01  # four intervals: no period yet
+    model.update(se2.pose(), 0.1)
+    assert model.effective_dt(0.01) == 0.1
+    assert model.effective_dt(0.05) == 0.05  # half the median is not short
+    assert model.effective_dt(0.3) == 0.3
+    model.forget_intervals()
+    assert model.effective_dt(0.01) == 0.01
+    window = motion_model()
+    for dt in [0.9] + [0.2] * (PERIOD_WINDOW - 5) + [0.01] * 5:  # bursty: the mean is used
+        window.update(se2.pose(), dt)
+    # Only the last 25 intervals count (a window of 26 would give 0.19, one of 24 0.1604).
+    assert window.effective_dt(0.2) == pytest.approx((20 * 0.2 + 5 * 0.01) / 25, rel=1e-12)
+
+
+def test_motion_model_bursty_stamps_are_those_with_over_a_tenth_of_short_intervals():
+    """Over JITTER_FRACTION of intervals below half the median: the mean interval is used."""
+    from laser_odom.core.motion import JITTER_FRACTION
+    assert JITTER_FRACTION == 0.1
+    cases = (([0.2] * 20 + [0.01] * 5, (20 * 0.2 + 5 * 0.01) / 25),  # 20 % short: bursty
+             ([0.2] * 18 + [0.01] * 2, 0.2),  # exactly 10 % short: regular
+             ([0.2] * 20 + [0.1] * 5, 0.2))  # exactly half the median is not short
+    for intervals, expected in cases:
+        model = motion_model()
+        for dt in intervals:
+            model.update(se2.pose(), dt)
+        assert model.effective_dt(0.2) == pytest.approx(expected, rel=1e-12)
+        assert model.effective_dt(0.01) == pytest.approx(expected, rel=1e-12)
