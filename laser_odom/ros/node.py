@@ -350,9 +350,6 @@ def main(args: list[str] | None = None) -> int:
     code = 0
     try:
         # Built before the node so that a Ctrl-C at any later moment finds it complete.
-        import os
-        if os.environ.get('LO_SWITCH'):
-            sys.setswitchinterval(float(os.environ['LO_SWITCH']))
         executor = SingleThreadedExecutor()
         node = LaserOdomNode(params_files)
         executor.add_node(node)
