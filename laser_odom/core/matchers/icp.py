@@ -18,8 +18,7 @@ from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatche
 from laser_odom.core.matchers.correspondences import nearest_neighbours
 from laser_odom.core.matchers.icp_solver import iterate
 from laser_odom.core.matchers.information import (
-    covariance_from_information, information_from_jacobians, point_to_line_jacobians,
-    residual_variance)
+    covariance_from_information, point_to_line_information)
 from laser_odom.core.matchers.registry import register
 from laser_odom.core.matchers.robust import trimmed_mask
 from laser_odom.core.nearest import BearingIndex
@@ -156,6 +155,6 @@ def surface_information(reference: ScanPoints, moved: np.ndarray, estimate: se2.
     offsets = moved[pairs.current] - reference.points[pairs.reference]
     residuals = np.einsum('nd,nd->n', normals, offsets)
     keep = trimmed_mask(residuals, cfg.max_keep_fraction)
-    jacobians = point_to_line_jacobians(moved[pairs.current][keep] - estimate[:2],
-                                        normals[keep])
-    return information_from_jacobians(jacobians, None, residual_variance(residuals[keep]))
+    kept = residuals[keep]
+    return point_to_line_information(moved[pairs.current][keep] - estimate[:2], normals[keep],
+                                     kept, np.ones(len(kept)))

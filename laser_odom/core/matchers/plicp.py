@@ -27,8 +27,7 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
 from laser_odom.core.matchers.information import (
-    covariance_from_information, information_from_jacobians, point_to_line_jacobians,
-    residual_variance)
+    covariance_from_information, point_to_line_information)
 from laser_odom.core.matchers.plicp_segments import (
     pair_with_segments, Pairs, reference_segments, ReferenceSegments)
 from laser_odom.core.matchers.plicp_solver import iterate
@@ -136,10 +135,9 @@ class PlicpMatcher(ScanMatcher):
             return MatchResult.failure(guess, iterations, 0, 'too few pairs')
         # Jacobians at the final estimate (rotated points R p = (R p + t) - t), with the
         # surface normals: the information the scene's geometry really holds.
-        information = information_from_jacobians(
-            point_to_line_jacobians(run.moved - run.estimate[:2],
-                                    segments.surface_normals[run.pairs.nearest]),
-            None, residual_variance(run.residuals))
+        information = point_to_line_information(
+            run.moved - run.estimate[:2], segments.surface_normals[run.pairs.nearest],
+            run.residuals, np.ones(len(run.residuals)))
         return MatchResult(
             pose=run.estimate, converged=run.converged, iterations=iterations,
             inlier_ratio=len(run.residuals) / len(current), residual=run.rms,
