@@ -48,7 +48,8 @@ from typing import Sequence
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.metrics import associate, DEFAULT_MAX_OFFSET_NS
+from laser_odom.core.metrics import (
+    associate, DEFAULT_MAX_OFFSET_NS, paired_reference_poses)
 from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
 from laser_odom.core.trajectory import Trajectory
 
@@ -110,12 +111,7 @@ def reference_at(estimate: Trajectory, reference: Trajectory,
     """
     at = np.full((len(estimate), 3), np.nan)
     ref_index, est_index = associate(estimate, reference, max_offset_ns)
-    at[est_index] = reference.poses[ref_index]
-    for r, e in zip(ref_index, est_index):
-        if reference.stamps_ns[r] != estimate.stamps_ns[e]:
-            interpolated = reference.interpolate(int(estimate.stamps_ns[e]))
-            if interpolated is not None:
-                at[e] = interpolated
+    at[est_index] = paired_reference_poses(estimate, reference, ref_index, est_index)
     return at
 
 

@@ -108,6 +108,24 @@ def associate(estimate: Trajectory, reference: Trajectory,
     return ref_index[keep], est_index[keep]
 
 
+def paired_reference_poses(estimate: Trajectory, reference: Trajectory,
+                           ref_index: np.ndarray, est_index: np.ndarray) -> np.ndarray:
+    """Return the reference pose of each pair from :func:`associate`.
+
+    A pair whose stamps differ takes the reference interpolated to the estimate's stamp
+    (where it lies within the reference's span), so a small stamp offset is not scored
+    as an error.
+    """
+    est_stamps = estimate.stamps_ns[est_index]
+    ref_poses = reference.poses[ref_index].copy()
+    inexact = np.flatnonzero(reference.stamps_ns[ref_index] != est_stamps)
+    for i in inexact:  # only pairs off by a stamp offset; usually none
+        interpolated = reference.interpolate(int(est_stamps[i]))
+        if interpolated is not None:
+            ref_poses[i] = interpolated
+    return ref_poses
+
+
 def align_se2(source: np.ndarray, target: np.ndarray) -> se2.Pose:
     """Return the rigid SE(2) pose ``T`` minimising ``sum ||T(source_i) - target_i||^2``.
 
@@ -165,13 +183,7 @@ def evaluate(estimate: Trajectory, reference: Trajectory,
         raise ValueError('no estimate pose lies within '
                          f'{max_offset_ns * 1e-9:.3f} s of a reference stamp')
     est_poses = estimate.poses[est_index]
-    est_stamps = estimate.stamps_ns[est_index]
-    ref_poses = reference.poses[ref_index].copy()
-    inexact = np.flatnonzero(reference.stamps_ns[ref_index] != est_stamps)
-    for i in inexact:  # only pairs off by a stamp offset; usually none
-        interpolated = reference.interpolate(int(est_stamps[i]))
-        if interpolated is not None:
-            ref_poses[i] = interpolated
+    ref_poses = paired_reference_poses(estimate, reference, ref_index, est_index)
     alignment = align_se2(est_poses[:, :2], ref_poses[:, :2])
     aligned = se2.transform_points(alignment, est_poses[:, :2])
     position_error = np.hypot(*(aligned - ref_poses[:, :2]).T)
