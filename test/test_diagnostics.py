@@ -11,7 +11,7 @@ import numpy as np
 
 from laser_odom.core.settings import NodeConfig
 from laser_odom.ros.diagnostics import (
-    BUSY_KEY, DiagnosticsReporter, DROPPED_KEY, ScanGapCounter, Snapshot)
+    BUSY, BUSY_KEY, DiagnosticsReporter, DROPPED, DROPPED_KEY, ScanGapCounter, Snapshot)
 
 # Keys read by laser_odom.tools.replay_live, laser_odom.tools.bench_live and test_node.
 PARSED_KEYS = ('scans received', 'scans in', 'scans processed', 'scans skipped',
@@ -60,8 +60,42 @@ def test_a_repaired_scan_is_processed_not_skipped():
     assert values['matcher_error'] == '2'
 
 
+PERIOD = 100_000_000
+"""Scan period of the gap-counter tests [ns]."""
+
+
 def test_gap_counter_counts_scans_dropped_on_the_way():
+    """Without sequence numbers, a gap in the stamps is all there is to go on."""
     counter = ScanGapCounter(min_samples=3)
-    period = 100_000_000
-    stamps = [i * period for i in (0, 1, 2, 3, 4, 7, 8)]
-    assert [counter.missed(s, 10 * period) for s in stamps] == [0, 0, 0, 0, 0, 2, 0]
+    stamps = [i * PERIOD for i in (0, 1, 2, 3, 4, 7, 8, 20, 21, 19, 20, 21, 22, 23, 25)]
+    # 7: two dropped; 20: a pause longer than max_gap_ns; 19: back in time, period relearnt
+    assert [counter.skipped(s, 10 * PERIOD) for s in stamps] == [
+        {}, {}, {}, {}, {}, {DROPPED: 2}, {}, {}, {}, {}, {}, {}, {}, {}, {DROPPED: 1}]
+
+
+def test_gap_counter_tells_busy_from_dropped_by_sequence_and_wait():
+    """Scans published but overwritten while the node was busy are not network losses."""
+    counter = ScanGapCounter(min_samples=3)
+    arrivals = [  # stamp index, publication sequence number, waited in the subscription
+        (0, 1, False), (1, 2, False), (2, 3, False), (3, 4, False),
+        (5, 6, True),  # one overwritten while busy
+        (7, 8, False),  # one lost on the network
+        (10, 9, False),  # two never published (the driver lost them)
+        (13, 11, True),  # one overwritten, one never published
+    ]
+    # always busy from here on: every other scan; the period is still known
+    arrivals += [(13 + 2 * k, 11 + 2 * k, True) for k in range(1, 30)]
+    counts = [counter.skipped(i * PERIOD, 10 * PERIOD, seq, waited)
+              for i, seq, waited in arrivals]
+    assert counts[:8] == [{}, {}, {}, {}, {BUSY: 1}, {DROPPED: 1}, {DROPPED: 2},
+                          {BUSY: 1, DROPPED: 1}]
+    assert counts[8:] == [{BUSY: 1}] * 29
+
+
+def test_gap_counter_ignores_sequence_numbers_the_stamps_cannot_hold():
+    """Two publishers on one topic interleave their numbers: the stamps decide."""
+    counter = ScanGapCounter(min_samples=3)
+    for i in range(6):
+        assert counter.skipped(i * PERIOD, 10 * PERIOD, i + 1) == {}
+    assert counter.skipped(6 * PERIOD, 10 * PERIOD, 500, True) == {}
+    assert counter.skipped(8 * PERIOD, 10 * PERIOD, 3, False) == {DROPPED: 1}

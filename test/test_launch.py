@@ -392,7 +392,6 @@ def test_node_runs_with_the_launch_arguments(launch_api, context, tmp_path):
                         <= graph_topics(node, 'publisher'), 10.0), graph_topics(
             node, 'publisher')
     finally:
-        node.shutdown()
         node.destroy_node()
 
 
@@ -446,7 +445,6 @@ def test_rviz_displays_match_the_node(launch_api, context):
             published - graph_topics(node, 'publisher'))
         assert topic['PointCloud2'] == node.resolve_topic_name('~/matched_scan')
     finally:
-        node.shutdown()
         node.destroy_node()
     assert topic == {'LaserScan': '/scan', 'Odometry': '/odom', 'Pose': '/pose',
                      'PointCloud2': '/laser_odom/matched_scan'}

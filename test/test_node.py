@@ -245,7 +245,8 @@ def test_slow_processing_drops_old_scans_instead_of_queueing(peer, main_node):
     dropped = (backlog - backlog_before) + (missed - missed_before)
     # Every scan of the burst was either processed or counted as skipped.
     assert len(answered) + dropped == len(burst), (answered, backlog, missed)
-    assert len(answered) < len(burst)
+    # Published back to back: most of them were overwritten while a scan was matched.
+    assert backlog - backlog_before > 0 and len(answered) < len(burst)
 
 
 def test_ctrl_c_while_matching_exits_cleanly(peer, main_node):

@@ -1,4 +1,4 @@
-"""The node object in-process: the TF paths and the latest-scan slot, step by step.
+"""The node object in-process: the TF paths and the scan callback, step by step.
 
 tf2_ros has no pip wheels, so the TF test stands in a minimal fake with the same calls
 the node makes (``Buffer.lookup_transform``, ``TransformListener``,
@@ -7,10 +7,11 @@ node object scan by scan.
 """
 
 import math
+import time
 import types
 
 from geometry_msgs.msg import TransformStamped
-from node_harness import pose_error, TEST_WORLD, wait_for
+from node_harness import odometry_msg, pose_error, TEST_WORLD
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -94,31 +95,96 @@ def test_extrinsic_from_tf_and_odom_broadcast(fake_tf, context):
         assert np.allclose([sent[-1].transform.translation.x, sent[-1].transform.translation.y],
                            node.pipeline.pose[:2])
     finally:
-        node.shutdown()
         node.destroy_node()
 
 
-def test_busy_worker_keeps_only_the_newest_scan(context):
-    """While a scan is being matched, newer scans replace each other in the slot."""
+def test_scans_are_matched_in_the_callback_and_the_missing_ones_counted(context):
+    """Each scan is published from its own callback; the ones never seen are counted.
+
+    The callback is driven with the DDS metadata it gets: a scan received before the
+    node finished the previous one waited, so the scans published in between were
+    overwritten because the node was busy; otherwise they were lost on the way.
+    """
     data = simulate(TEST_WORLD, 1.5, LaserModel(), seed=8)
     node = LaserOdomNode(context=context, parameter_overrides=[
         Parameter('matcher', value='plicp')])
-    msgs = [scan_to_msg(scan) for scan in data.scans]
+    published = []
+    node._odom_pub.publish = published.append
+
+    def arrive(index: int, waited: bool) -> None:
+        received = 1 if waited else time.time_ns()
+        node._on_scan(scan_to_msg(data.scans[index]), {
+            'received_timestamp': received, 'publication_sequence_number': index + 1})
+
     try:
-        for i, msg in enumerate(msgs[:6]):  # one at a time: the scan period is learnt
-            node._on_scan(msg)
-            assert wait_for(lambda: node.pipeline.counters['processed'] == i + 1, 10.0)
-        processed = node.pipeline.counters['processed']
-        with node._lock:  # the worker takes the next scan, then waits for the pipeline
-            node._on_scan(msgs[6])
-            assert wait_for(lambda: node._slot is None, 10.0)
-            for msg in (msgs[7], msgs[8], msgs[10]):  # msgs[9] is lost on the wire
-                node._on_scan(msg)
-        assert wait_for(lambda: node.pipeline.counters['processed'] == processed + 2, 10.0)
-        assert node.pipeline.last_stamp_ns == data.scans[10].stamp_ns
-        assert node.pipeline.counters['skipped_backlog'] == 2
-        assert node.pipeline.counters['missed_scans'] == 1
-        assert node._received == 10
+        for index in range(6):  # one at a time: the scan period is learnt
+            arrive(index, waited=False)
+        assert len(published) == 6
+        arrive(8, waited=True)  # 6 and 7 overwritten while 5 was matched
+        arrive(10, waited=False)  # 9 lost on the network
+        arrive(11, waited=False)
+        counters = node.pipeline.counters
+        assert counters['processed'] == 9 and len(published) == 9
+        assert [stamp_to_ns(m.header.stamp) for m in published[-3:]] == [
+            data.scans[i].stamp_ns for i in (8, 10, 11)]
+        assert counters['skipped_backlog'] == 2 and counters['missed_scans'] == 1
+        assert node._received == 11  # the overwritten ones did reach the node
+        assert len(node._latencies) == 9
     finally:
-        node.shutdown()
+        node.destroy_node()
+
+
+def test_a_scan_waits_for_its_prior_while_the_prior_is_still_arriving(context):
+    """Wheel odometry queued behind a scan is used (interpolated), not extrapolated past.
+
+    The scan waits a turn of the executor while odometry messages keep arriving and
+    its stamp is not yet covered; when none arrive it is matched with what is there,
+    and a newer scan sends a waiting one on at once.
+    """
+    data = simulate(TEST_WORLD, 1.5, LaserModel(), seed=8)
+    wheel, scans = data.odometry, data.scans
+    node = LaserOdomNode(context=context, parameter_overrides=[
+        Parameter('matcher', value='plicp'), Parameter('prior', value='odom')])
+    sent = 0
+
+    def odometry_until(stamp_ns: int) -> None:
+        nonlocal sent
+        while sent < len(wheel.stamps_ns) and wheel.stamps_ns[sent] <= stamp_ns:
+            node._priors._on_odometry(odometry_msg(wheel.stamps_ns[sent], wheel.poses[sent]))
+            sent += 1
+
+    def arrive(index: int) -> None:
+        node._on_scan(scan_to_msg(scans[index]), {})
+
+    counters = node.pipeline.counters
+    try:
+        for index in range(4):  # covered by the odometry: matched at once
+            odometry_until(scans[index].stamp_ns)
+            arrive(index)
+            assert counters['processed'] == index + 1 and node._waiting is None
+        odometry_until(scans[4].stamp_ns - 30_000_000)
+        arrive(4)  # the odometry is behind: the scan waits
+        assert counters['processed'] == 4 and node._waiting is not None
+        odometry_until(scans[4].stamp_ns - 10_000_000)
+        node._on_prior_wait()  # still behind, but a message came: wait another turn
+        assert counters['processed'] == 4
+        odometry_until(scans[4].stamp_ns + 10_000_000)
+        node._on_prior_wait()  # covered: matched
+        assert counters['processed'] == 5 and node._waiting is None
+        assert counters['prior_missing'] == 0
+
+        arrive(5)  # behind, and no odometry comes: matched after one turn
+        assert counters['processed'] == 5
+        node._on_prior_wait()
+        assert counters['processed'] == 6
+        arrive(6)
+        arrive(7)  # a newer scan: the waiting one is matched first
+        assert counters['processed'] == 7
+        assert node.pipeline.last_stamp_ns == scans[6].stamp_ns
+        node._on_prior_wait()
+        assert counters['processed'] == 8
+        truth = data.reference.poses
+        error = pose_error(node.pipeline.pose, se2.relative(truth[0], truth[7]))
+        assert error[0] < 0.03 and error[1] < 0.01, error
+    finally:
         node.destroy_node()

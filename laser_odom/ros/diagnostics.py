@@ -7,9 +7,9 @@ level is judged on the last period only (failure rate, backlog, silence) and on 
 recent processing times, so the status recovers as soon as the problem does.
 
 Scans the odometry never saw are said as what happened to them: scans dropped before
-reaching the node (stamps missing from the sequence: lost by the driver, the network
-or the subscription queue; counter ``missed_scans``) and scans not processed because
-the node was busy (overwritten in its one-scan slot while it matched an earlier one;
+reaching the node (stamps missing from the sequence: lost by the driver or the network;
+counter ``missed_scans``) and scans not processed because the node was busy
+(overwritten in its depth-1 subscription while it matched an earlier one;
 ``skipped_backlog``). ``scans skipped`` totals every scan not processed, by reason in
 ``skipped: <reason>`` (these two included, under the counter names that other programs
 read); a repaired scan was processed and is counted under its own name.
@@ -36,7 +36,8 @@ DROPPED = 'missed_scans'
 """Counter of the scans dropped before reaching the node (gaps in the stamps)."""
 
 BUSY = 'skipped_backlog'
-"""Counter of the scans not processed because the node was busy (slot overwritten)."""
+"""Counter of the scans not processed because the node was busy (overwritten in the
+subscription's depth-1 queue)."""
 
 DROPPED_KEY = 'scans dropped before reaching the node'
 """Diagnostics key of the :data:`DROPPED` count."""
@@ -51,35 +52,65 @@ matcher error is processed, so its counter is listed under its own name."""
 
 
 class ScanGapCounter:
-    """Counts scans dropped before reaching the node, from gaps between successive stamps.
+    """Counts the scans that never reached the node's callback, and why, from those that do.
 
-    A scan dropped on the wire, or overwritten in the depth-1 subscription queue while
-    the node was busy, leaves a gap of several scan periods between the stamps the node
-    does receive. The period is the median of the recent gaps; gaps longer than
-    ``max_gap_ns`` (a pause, a restart) and stamps going back are not counted.
+    The subscription keeps only the newest scan, so a scan published while the node
+    was matching an earlier one is overwritten by the next. Two gaps between the scans
+    that do arrive tell of the others:
+
+    - the publisher's sequence numbers (DDS metadata): scans published but never
+      delivered. When the scan that ends the gap waited in the subscription (it was
+      received while the node was still busy with the previous one), they were
+      overwritten there: :data:`BUSY`; otherwise they were lost on the way (the
+      network, or published faster than the subscription is served): :data:`DROPPED`;
+    - the stamps: a gap of several scan periods that the sequence numbers do not
+      explain holds scans that were never published (lost by the driver, or before a
+      relay): :data:`DROPPED`.
+
+    The period is the median of the recent stamp gaps, each divided by the number of
+    scans published in it, so a node that is always busy still learns the scanner's
+    period. Gaps longer than ``max_gap_ns`` (a pause, a restart) and stamps or sequence
+    numbers going back are not counted, nor sequence gaps far longer than the stamps
+    allow (two publishers on one topic). A middleware without sequence numbers or
+    reception times leaves only the stamps, and every missing scan counts as dropped.
     """
 
     def __init__(self, window: int = 50, min_samples: int = 5) -> None:
-        """Create the counter; nothing is counted before ``min_samples`` gaps are seen."""
-        self._gaps: deque[int] = deque(maxlen=window)
+        """Create the counter; stamps count nothing before ``min_samples`` gaps are seen."""
+        self._periods: deque[float] = deque(maxlen=window)
         self._min_samples = min_samples
         self._last: int | None = None
+        self._last_sequence: int | None = None
 
-    def missed(self, stamp_ns: int, max_gap_ns: int) -> int:
-        """Return how many scans are missing just before the scan stamped ``stamp_ns``."""
+    def skipped(self, stamp_ns: int, max_gap_ns: int, sequence: int | None = None,
+                waited: bool = False) -> dict[str, int]:
+        """Return the scans missing just before the scan stamped ``stamp_ns``, by reason.
+
+        ``sequence`` is its publication sequence number (None if unknown) and
+        ``waited`` whether it was received while the node was busy.
+        """
         last, self._last = self._last, stamp_ns
+        last_sequence, self._last_sequence = self._last_sequence, sequence
+        published = 1
+        if sequence is not None and last_sequence is not None and sequence > last_sequence:
+            published = sequence - last_sequence
         if last is None or stamp_ns <= last:
             if last is not None and stamp_ns < last:
-                self._gaps.clear()
-            return 0
+                self._periods.clear()
+            return {}
         gap = stamp_ns - last
         if gap > max_gap_ns:
-            return 0
-        period = float(np.median(self._gaps)) if len(self._gaps) >= self._min_samples else 0.0
-        self._gaps.append(gap)
-        if period <= 0.0 or gap <= 1.5 * period:
-            return 0
-        return int(round(gap / period)) - 1
+            return {}
+        enough = len(self._periods) >= self._min_samples
+        period = float(np.median(self._periods)) if enough else 0.0
+        if period > 0.0 and published > 2.0 * gap / period + 1.0:
+            published = 1  # more scans than the stamps have room for: two publishers
+        self._periods.append(gap / published)
+        from_stamps = int(round(gap / period)) - 1 if period > 0.0 and gap > 1.5 * period else 0
+        overwritten = published - 1
+        counts = {BUSY if waited else DROPPED: overwritten}
+        counts[DROPPED] = counts.get(DROPPED, 0) + max(0, from_stamps - overwritten)
+        return {k: v for k, v in counts.items() if v}
 
 
 @dataclass

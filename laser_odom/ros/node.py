@@ -6,11 +6,16 @@ with the scan's own stamp, plus ``odom_frame -> base_frame`` on TF when tf2_ros 
 available. The odometry is :class:`laser_odom.core.pipeline.OdometryPipeline`, the
 object the replay harness drives offline.
 
-The node never queues scans: the subscription callback only fills a one-scan slot
-and a worker thread drains it, so when matching is slower than the scanner the newest
-scan is matched against the last processed one and the overwritten scans are counted
-on ``/diagnostics`` as scans not processed because the node was busy. ``~/reset``
-(``std_srvs/Trigger``) and ``~/set_pose``
+Each scan is matched in the subscription callback itself, so the result is published
+without a hand-over to another thread. The node never queues scans: the subscription
+keeps only the newest one (depth 1), so when matching is slower than the scanner the
+newest scan is matched against the last processed one; the scans in between are
+counted on ``/diagnostics`` as not processed because the node was busy, or as dropped
+before reaching the node when they were lost before (see :class:`.ScanGapCounter`).
+With an external prior, a scan that its wheel odometry or IMU has not reached yet waits
+while their messages keep arriving, so that the prior is interpolated as offline.
+
+``~/reset`` (``std_srvs/Trigger``) and ``~/set_pose``
 (``geometry_msgs/PoseWithCovarianceStamped``) restart the integration; health goes to
 ``/diagnostics`` once a second; parameters are live (see :mod:`.live`). With
 ``publish_debug`` the matched scan goes out on ``~/matched_scan`` in the odom frame.
@@ -22,6 +27,7 @@ from collections import deque
 import sys
 import threading
 import time
+from typing import Any
 from typing import Sequence
 
 from builtin_interfaces.msg import Time
@@ -46,7 +52,7 @@ from laser_odom.ros import extrinsic
 from laser_odom.ros.conversions import (
     initial_pose_from_msg, matched_cloud_msg, published_messages, scan_from_msg, stamp_to_ns)
 from laser_odom.ros.diagnostics import (
-    DiagnosticsReporter, ScanGapCounter, Snapshot)
+    BUSY, DiagnosticsReporter, ScanGapCounter, Snapshot)
 from laser_odom.ros.extrinsic import TfInterface
 from laser_odom.ros.live import LiveParameters, StartupError
 from laser_odom.ros.priors import PriorInputs
@@ -72,7 +78,7 @@ class LaserOdomNode(Node):
     """Scan-to-scan laser odometry as a ROS 2 node (node name ``laser_odom``)."""
 
     def __init__(self, params_files: Sequence[ParamsFile] = (), **kwargs) -> None:
-        """Declare parameters, build the pipeline and start the worker.
+        """Declare parameters, build the pipeline and subscribe.
 
         ``params_files`` are the parsed files given with ``--params-file`` (to warn when
         none of a file's sections addresses this node). Raises :class:`StartupError`
@@ -83,7 +89,6 @@ class LaserOdomNode(Node):
         try:
             self._setup(params_files)
         except BaseException:
-            self.shutdown()
             self.destroy_node()
             raise
 
@@ -102,16 +107,12 @@ class LaserOdomNode(Node):
         self._pose_pub = self.create_publisher(PoseStamped, 'pose', 10)
         self._cloud_pub = self.create_publisher(PointCloud2, '~/matched_scan', 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._slot_lock = threading.Lock()
-        self._slot: LaserScanMsg | None = None
-        self._slot_received = 0.0
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
-        self._overwritten = 0
-        self._missed = 0
         self._gaps = ScanGapCounter()
         self._received = 0
-        self._wake = threading.Event()
-        self._stop = threading.Event()
+        self._busy_until_ns = 0
+        self._waiting: tuple[LaserScanMsg, dict[str, int], float, int] | None = None
+        self._next_turn = self.create_guard_condition(self._on_prior_wait)
         self._warm_up(settings.pipeline.matcher)
         self._scan_sub = self.create_subscription(
             LaserScanMsg, 'scan', self._on_scan, SCAN_QOS)
@@ -123,9 +124,6 @@ class LaserOdomNode(Node):
             settings.node.base_frame, time.monotonic())
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
         self.params.start()
-        self._worker = threading.Thread(target=self._work, name='laser_odom_worker',
-                                        daemon=True)
-        self._worker.start()
         self._log_startup()
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
@@ -186,45 +184,63 @@ class LaserOdomNode(Node):
         self.get_logger().info('parameters set: ' + ', '.join(
             f'{k}={v!r}' for k, v in sorted(changed.items())))
 
-    def _on_scan(self, msg: LaserScanMsg) -> None:
-        """Keep only the newest scan; the worker takes it when it is free."""
-        max_gap_ns = int(self.pipeline.config.motion.max_scan_gap * 1e9)
-        with self._slot_lock:
-            self._received += 1
-            self._missed += self._gaps.missed(stamp_to_ns(msg.header.stamp), max_gap_ns)
-            if self._slot is not None:
-                self._overwritten += 1
-            self._slot, self._slot_received = msg, time.monotonic()
-        self._wake.set()
+    def _on_scan(self, msg: LaserScanMsg, info: dict[str, Any]) -> None:
+        """Match the scan and publish its odometry, or wait for its prior to catch up.
 
-    def _work(self) -> None:
-        """Process scans from the slot until the node shuts down."""
-        while not self._stop.is_set():
-            if not self._wake.wait(0.1):
-                continue
-            self._wake.clear()
-            with self._slot_lock:
-                msg, received = self._slot, self._slot_received
-                skipped = {'skipped_backlog': self._overwritten,
-                           'missed_scans': self._missed}
-                self._slot, self._overwritten, self._missed = None, 0, 0
-            if msg is None:
-                continue
-            try:
-                if self._process(msg, skipped):
-                    self._latencies.append(time.monotonic() - received)
-                with self._lock:  # the next keyframe's own work, once the result is out
-                    self.pipeline.prepare_next()
-            except Exception as error:  # keep running: one bad scan must not stop odometry
-                if self._stop.is_set() or not self.context.ok():
-                    return
+        ``info`` is the message's DDS metadata: a scan received while the previous one
+        was being matched waited in the subscription, so the scans missing before it
+        were overwritten there because the node was busy.
+        """
+        received = time.monotonic()
+        max_gap_ns = int(self.pipeline.config.motion.max_scan_gap * 1e9)
+        waited = 0 < (info.get('received_timestamp') or 0) < self._busy_until_ns
+        skipped = self._gaps.skipped(stamp_to_ns(msg.header.stamp), max_gap_ns,
+                                     info.get('publication_sequence_number'), waited)
+        self._received += 1 + skipped.get(BUSY, 0)
+        if self._waiting is not None:  # a newer scan: the waiting one goes with what is there
+            self._match(*self._waiting[:3])
+        self._waiting = (msg, skipped, received, -1)
+        self._on_prior_wait()
+
+    def _on_prior_wait(self) -> None:
+        """Match the waiting scan once its prior has caught up or stopped coming.
+
+        The executor takes one message per subscription and turn, so after a burst the
+        wheel odometry or IMU messages up to the scan's stamp may still be queued behind
+        it. While the active prior is behind the scan and its messages keep arriving,
+        the scan waits a turn of the executor (the guard condition); then it is matched
+        with the prior interpolated, not extrapolated, as the replay does.
+        """
+        if self._waiting is None:
+            return
+        msg, skipped, received, arrivals = self._waiting
+        prior = self.pipeline.config.motion.prior
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if self._priors.behind(prior, stamp_ns) and self._priors.arrivals != arrivals:
+            self._waiting = (msg, skipped, received, self._priors.arrivals)
+            self._next_turn.trigger()
+            return
+        self._waiting = None
+        self._match(msg, skipped, received)
+
+    def _match(self, msg: LaserScanMsg, skipped: dict[str, int], received: float) -> None:
+        """Process one scan, then do the next keyframe's own work (errors are logged)."""
+        try:
+            if self._process(msg, skipped):
+                self._latencies.append(time.monotonic() - received)
+            with self._lock:  # the next keyframe's own work, once the result is out
+                self.pipeline.prepare_next()
+        except Exception as error:  # keep running: one bad scan must not stop odometry
+            if self.context.ok():
                 self.get_logger().error(f'failed to process a scan: {error!r}')
+        finally:
+            self._busy_until_ns = time.time_ns()
 
     def _process(self, msg: LaserScanMsg, skipped: dict[str, int]) -> bool:
         """Run one scan through the pipeline and publish the result; True if published.
 
         ``skipped`` counts the scans that never reached the pipeline since the last
-        call: overwritten in the slot, or missing from the stamps (see :mod:`.diagnostics`).
+        call, by reason (see :class:`.ScanGapCounter`).
         """
         scan = scan_from_msg(msg)
         with self._lock:
@@ -303,11 +319,9 @@ class LaserOdomNode(Node):
 
     def _publish_diagnostics(self) -> None:
         """Publish the node's health (timer callback, once a second)."""
-        with self._slot_lock:
-            received = self._received
         with self._lock:
             snapshot = Snapshot(
-                time.monotonic(), received, self.pipeline.counters.copy(),
+                time.monotonic(), self._received, self.pipeline.counters.copy(),
                 np.array(self.pipeline.processing_times), self.pipeline.matcher.name,
                 self.pipeline.config.motion.prior, self._scan_sub.topic_name,
                 np.array(self._latencies))
@@ -315,16 +329,6 @@ class LaserOdomNode(Node):
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics_pub.publish(msg)
-
-    def shutdown(self) -> None:
-        """Stop the worker thread (before the node is destroyed)."""
-        if not hasattr(self, '_stop'):
-            return
-        self._stop.set()
-        self._wake.set()
-        worker = getattr(self, '_worker', None)
-        if worker is not None and worker.is_alive():
-            worker.join(timeout=5.0)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -361,7 +365,6 @@ def main(args: list[str] | None = None) -> int:
         pass
     finally:
         if node is not None:
-            node.shutdown()
             node.destroy_node()
         rclpy.try_shutdown()
     return code

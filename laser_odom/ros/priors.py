@@ -43,6 +43,8 @@ class PriorInputs:
         self.odometry = OdometryBuffer(config)
         self.imu = ImuBuffer(config)
         self._subscriptions: dict[str, Subscription] = {}
+        self.arrivals = 0
+        """Prior messages received so far (both topics)."""
 
     def configure(self, prior: str, config: PriorConfig) -> None:
         """Subscribe to the topic ``prior`` needs and drop the other subscription."""
@@ -65,8 +67,17 @@ class PriorInputs:
         subscription = self._subscriptions.get(prior)
         return subscription.topic_name if subscription is not None else None
 
+    def behind(self, prior: str, stamp_ns: int) -> bool:
+        """Return whether the active external prior has data, but none at ``stamp_ns`` yet."""
+        if prior not in PRIOR_TOPICS:
+            return False
+        with self._lock:
+            newest = (self.odometry if prior == 'odom' else self.imu).newest_ns
+        return newest is not None and newest < stamp_ns
+
     def _on_odometry(self, msg: Odometry) -> None:
         """Buffer one wheel odometry pose."""
+        self.arrivals += 1
         stamp_ns, pose = odometry_pose_from_msg(msg)
         if se2.is_finite_pose(pose):
             with self._lock:
@@ -74,6 +85,7 @@ class PriorInputs:
 
     def _on_imu(self, msg: Imu) -> None:
         """Buffer one IMU yaw / yaw rate sample."""
+        self.arrivals += 1
         stamp_ns, yaw, rate = imu_yaw_from_msg(msg)
         if rate == rate and (yaw is None or yaw == yaw):
             with self._lock:

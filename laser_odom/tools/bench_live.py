@@ -220,7 +220,7 @@ def format_live(rows: Sequence[LiveRow], beams: int, rate: float, duration: floa
     lines.append('# node: receipt -> publish inside the node (its /diagnostics); e2e: '
                  'publish of the scan -> receipt of its odometry by the publisher')
     lines.append("# proc ms: the pipeline's own median time per scan (the rest of 'node' is "
-                 "the node's hand-over and publishing); CPU %: the node process over the")
+                 "the node's message conversion and publishing); CPU %: the node process over the")
     lines.append('#   stream, 100 = one core; ready s: process start -> subscribed and '
                  'publishing; first ms: e2e of the first scan')
     return '\n'.join(lines)
