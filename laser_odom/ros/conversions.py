@@ -89,11 +89,13 @@ def scan_to_msg(scan: LaserScan) -> LaserScanMsg:
     return msg
 
 
-def covariance_6x6(covariance: np.ndarray) -> list[float]:
+def covariance_6x6(covariance: np.ndarray) -> np.ndarray:
     """Embed a 3x3 ``[x, y, yaw]`` covariance in a row-major 6x6 ROS covariance.
 
     A non-finite input (which the pipeline should never produce) becomes
-    :data:`UNOBSERVED_VARIANCE` on the diagonal rather than NaN on the wire.
+    :data:`UNOBSERVED_VARIANCE` on the diagonal rather than NaN on the wire. The
+    result is a flat float64 array, which a message field takes without checking
+    each element in Python.
     """
     planar = np.asarray(covariance, dtype=float).reshape(3, 3)
     if not np.all(np.isfinite(planar)):
@@ -101,7 +103,7 @@ def covariance_6x6(covariance: np.ndarray) -> list[float]:
     full = np.diag([0.0, 0.0, UNOBSERVED_VARIANCE, UNOBSERVED_VARIANCE,
                     UNOBSERVED_VARIANCE, 0.0])
     full[np.ix_(PLANAR_INDEX, PLANAR_INDEX)] = 0.5 * (planar + planar.T)
-    return [float(v) for v in full.reshape(-1)]
+    return full.reshape(-1)
 
 
 def covariance_3x3(covariance: list[float] | np.ndarray) -> np.ndarray:
@@ -204,7 +206,7 @@ def published_messages(estimate: OdometryEstimate, stamp: Time, odom_frame: str,
     odometry = odometry_to_msg(estimate, stamp, odom_frame, base_frame)
     if odometry is None:
         return None
-    return PublishedMessages(odometry, pose_stamped_to_msg(estimate, stamp, odom_frame),
+    return PublishedMessages(odometry, pose_stamped_from_odometry(odometry),
                              transform_to_msg(estimate, stamp, odom_frame, base_frame))
 
 
