@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
 from laser_odom.core.nearest import BearingIndex
 
 
@@ -50,18 +49,6 @@ def test_queries_at_the_origin_and_points_at_the_origin():
     distance, index = BearingIndex(points).nearest(queries, 1.0)
     assert index.tolist() == [0, 0, 0, 3]  # the last: nothing within 1 m -> n
     assert distance[3] == np.inf and distance[0] == 0.0
-
-
-def test_trimming_keeps_exactly_the_smallest_and_the_earliest_ties():
-    residuals = np.array([0.3, -0.1, 0.2, -0.2, 0.5, 0.2])
-    assert trimmed_mask(residuals, 0.5).tolist() == [False, True, True, True, False, False]
-    assert trimmed_mask(residuals, 1.0).all() and not trimmed_mask(residuals, 0.0).any()
-    assert trimmed_mask(residuals, 0.01).tolist() == [False, True, False, False, False, False]
-    # 1.4826 * median |r| = 0.2965: 3 sigma keeps all; 0.5 sigma only |r| <= 0.148.
-    assert adaptive_keep_fraction(residuals, 0.1, 1.0, 3.0) == 1.0
-    assert adaptive_keep_fraction(residuals, 0.1, 1.0, 0.5) == pytest.approx(1 / 6)
-    assert adaptive_keep_fraction(residuals, 0.5, 0.9, 0.5) == 0.5
-    assert adaptive_keep_fraction(np.zeros(0), 0.5, 0.9) == 0.9
 
 
 @pytest.mark.parametrize('seed', range(30))
