@@ -59,6 +59,16 @@ def test_trimming_keeps_exactly_the_smallest_and_the_earliest_ties():
     assert trimmed_mask(np.zeros(0), 0.5).size == 0
 
 
+@pytest.mark.parametrize('share', [0.1, 0.37, 0.5, 0.9, 0.999])
+def test_trimming_a_large_set_keeps_the_smallest_ones(share):
+    """Large enough that the partial sort leaves the rest unordered."""
+    residuals = np.random.default_rng(7).normal(0.0, 1.0, 2000)
+    mask = trimmed_mask(residuals, share)
+    keep = math.ceil(share * residuals.size)
+    assert mask.sum() == keep
+    assert np.array_equal(np.flatnonzero(mask), np.sort(np.argsort(np.abs(residuals))[:keep]))
+
+
 def test_trimming_with_every_residual_equal_keeps_the_first_ones():
     assert trimmed_mask(np.full(5, 0.1), 0.4).tolist() == [True, True, False, False, False]
 
@@ -70,11 +80,13 @@ def test_adaptive_trimming_keeps_the_residuals_within_k_robust_sigmas():
     assert adaptive_keep_fraction(residuals, 0.1, 1.0, 0.5) == pytest.approx(1 / 6)
     assert adaptive_keep_fraction(residuals, 0.5, 0.9, 0.5) == 0.5
     assert adaptive_keep_fraction(residuals, 0.1, 0.9, 3.0) == 0.9
-    assert adaptive_keep_fraction(residuals, 0.1, 1.0) == 1.0  # 3 sigma by default
+    # median |r| 0.1: sigma 0.148; 2, 3 and 4 sigma keep 5, 6 and 7 of these 7
+    assert adaptive_keep_fraction(np.array([0.1] * 5 + [0.4, -0.5]), 0.1, 1.0) == 6 / 7
     # exactly at k sigma counts as within: |r| = 0.2 = 0.2 / 0.2965 sigma
     assert adaptive_keep_fraction(residuals, 0.0, 1.0, 0.2 / 0.29652) == pytest.approx(4 / 6)
     assert adaptive_keep_fraction(np.zeros(0), 0.5, 0.9) == 0.9
     assert adaptive_keep_fraction(np.zeros(4), 0.1, 0.8) == 0.8  # sigma 0: nothing to judge
+    assert adaptive_keep_fraction(np.array([0.0, 0.0, 0.0, 0.5, 1.0]), 0.1, 0.8) == 0.8
     assert adaptive_keep_fraction(residuals, 0.9, 0.9, 0.5) == 0.9
 
 
