@@ -7,12 +7,13 @@ level is judged on the last period only (failure rate, backlog, silence) and on 
 recent processing times, so the status recovers as soon as the problem does.
 
 Scans the odometry never saw are said as what happened to them: scans dropped before
-reaching the node (stamps missing from the sequence: lost by the driver or the network;
-counter ``missed_scans``) and scans not processed because the node was busy
-(overwritten in its depth-1 subscription while it matched an earlier one;
-``skipped_backlog``). ``scans skipped`` totals every scan not processed, by reason in
-``skipped: <reason>`` (these two included, under the counter names that other programs
-read); a repaired scan was processed and is counted under its own name.
+reaching the node (missing from the publisher's sequence numbers or the stamps: lost
+by the driver or the network; counter ``missed_scans``) and scans not processed
+because the node was busy (overwritten in its depth-1 subscription while it matched
+an earlier one; ``skipped_backlog``). ``scans skipped`` totals every scan not
+processed, by reason in ``skipped: <reason>`` (these two included, under the counter
+names that other programs read); a repaired scan was processed and is counted under
+its own name.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ REJECTED_PREFIX = 'rejected_'
 """Prefix of the per-reason rejection counters the node keeps."""
 
 DROPPED = 'missed_scans'
-"""Counter of the scans dropped before reaching the node (gaps in the stamps)."""
+"""Counter of the scans dropped before reaching the node (gaps in the publisher's
+sequence numbers and in the stamps)."""
 
 BUSY = 'skipped_backlog'
 """Counter of the scans not processed because the node was busy (overwritten in the
@@ -107,9 +109,9 @@ class ScanGapCounter:
             published = 1  # more scans than the stamps have room for: two publishers
         self._periods.append(gap / published)
         from_stamps = int(round(gap / period)) - 1 if period > 0.0 and gap > 1.5 * period else 0
-        overwritten = published - 1
-        counts = {BUSY if waited else DROPPED: overwritten}
-        counts[DROPPED] = counts.get(DROPPED, 0) + max(0, from_stamps - overwritten)
+        undelivered = published - 1
+        counts = {BUSY if waited else DROPPED: undelivered}
+        counts[DROPPED] = counts.get(DROPPED, 0) + max(0, from_stamps - undelivered)
         return {k: v for k, v in counts.items() if v}
 
 

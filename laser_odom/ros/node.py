@@ -27,8 +27,7 @@ from collections import deque
 import sys
 import threading
 import time
-from typing import Any
-from typing import Sequence
+from typing import Any, Sequence
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
