@@ -4,10 +4,13 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
 from laser_odom.core.matchers import create_matcher
-from laser_odom.core.matchers.icp_solver import align_pairs
+from laser_odom.core.matchers.icp_solver import accelerated_extra, align_pairs, iterate
+from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.nearest import BearingIndex
 from laser_odom.core.scan import densify, scan_to_points, ScanPoints
 from laser_odom.core.simulation import get_world, LaserModel, render_scan
 
@@ -59,6 +62,116 @@ def test_svd_step_handles_the_reflection_case():
     got = align_pairs(source, target, np.ones(len(source)))
     rot = se2.rotation(got[2])
     assert math.isclose(np.linalg.det(rot), 1.0)
+
+
+def turned(vector: np.ndarray, degrees: float) -> np.ndarray:
+    """Return a planar step (x, y, 0) turned by ``degrees`` in the plane."""
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    return np.array([c * vector[0] - s * vector[1], s * vector[0] + c * vector[1], 0.0])
+
+
+def test_a_shrinking_creep_is_extrapolated_to_the_end_of_its_tail():
+    """Besl & McKay IV-C: steps r times the last add up to step * r / (1 - r) more."""
+    previous = np.array([0.1, 0.0, 0.0])
+    assert accelerated_extra(previous, previous * 0.5) == pytest.approx([0.05, 0.0, 0.0])
+    assert accelerated_extra(previous, previous * 0.2) == pytest.approx([0.005, 0.0, 0.0])
+    step = turned(previous * 0.5, 9.0)  # within 10 deg of the last: still one creep
+    assert accelerated_extra(previous, step) == pytest.approx(step)
+    three = np.array([0.02, -0.01, 0.004])  # all three axes, in metric units
+    assert accelerated_extra(three, three * 0.25) == pytest.approx(three * 0.25 / 3.0)
+
+
+def test_the_tail_is_capped_and_only_a_consistent_shrinking_creep_counts():
+    previous = np.array([0.1, 0.0, 0.0])
+    near_one = previous * 0.95  # tail 19 steps: capped at max_factor
+    assert accelerated_extra(previous, near_one) == pytest.approx(near_one * 10.0)
+    assert accelerated_extra(previous, near_one, 4.0) == pytest.approx(near_one * 4.0)
+    for step in (previous, previous * 1.5, turned(previous * 0.5, 11.0), -previous * 0.5):
+        assert np.array_equal(accelerated_extra(previous, step), np.zeros(3)), step
+    assert np.array_equal(accelerated_extra(np.zeros(3), previous), np.zeros(3))
+    assert np.array_equal(accelerated_extra(previous, np.zeros(3)), np.zeros(3))
+
+
+def box_room() -> np.ndarray:
+    """Return a 4 x 3 m room with a slanted wall in one corner, a point every 5 cm or so."""
+    walls = [np.column_stack((np.linspace(-2, 2, 80), np.full(80, y))) for y in (1.5, -1.5)]
+    walls += [np.column_stack((np.full(60, x), np.linspace(-1.5, 1.5, 60))) for x in (2, -2)]
+    u = np.linspace(0.0, 1.0, 30)
+    walls.append(np.column_stack((0.5 + 0.6 * u, -1.5 + 0.8 * u)))
+    return np.vstack(walls)
+
+
+ROOM_MOTION = se2.pose(0.25, 0.1, 0.03)
+"""The motion between the two room scans: point-to-point ICP creeps over it."""
+
+
+def room_scans(clutter: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Return the room as reference and, moved by ``ROOM_MOTION``, 3 mm noisy, as current.
+
+    ``clutter`` adds 30 current points 2-30 cm off a wall, most of which trimming drops.
+    """
+    target = box_room()
+    current = se2.transform_points(se2.inverse(ROOM_MOTION), target)
+    current = current + np.random.default_rng(1).normal(0.0, 0.003, current.shape)
+    if clutter:
+        off = np.column_stack((np.linspace(-1.0, 0.5, 30), 1.5 - np.linspace(0.02, 0.3, 30)))
+        current = np.vstack((current, se2.transform_points(se2.inverse(ROOM_MOTION), off)))
+    return target, current
+
+
+def room_iterate(max_iterations: int, min_correspondences: int = 10,
+                 start: np.ndarray | None = None, clutter: bool = False) -> tuple:
+    """Run :func:`iterate` from the origin (or ``start``) on the room scans."""
+    target, current = room_scans(clutter)
+    index = BearingIndex(target)
+    start = se2.pose() if start is None else start
+    return iterate(index.sorted_points, index.bearings, index.directions, index.order,
+                   target, current, np.asarray(start, float), max_iterations,
+                   min_correspondences, 0.5, 0.6, 1.0, 1e-5, 1e-5, 2.0)
+
+
+def test_iterations_extrapolate_the_creep_and_honour_the_cap():
+    paired, estimate, iterations, converged = room_iterate(200)
+    assert paired and converged
+    assert pose_error_mm(estimate, ROOM_MOTION) < 1.0
+    assert iterations <= 12  # 18 without the extrapolation of aligned steps
+    again = room_iterate(iterations)
+    assert again[0] and again[3] and again[2] == iterations
+    assert np.array_equal(again[1], estimate)
+    short = room_iterate(iterations - 1)
+    assert short[0] and not short[3] and short[2] == iterations - 1
+    one = room_iterate(1)
+    assert one[0] and not one[3] and one[2] == 1
+    assert pose_error_mm(one[1], ROOM_MOTION) < pose_error_mm(se2.pose(), ROOM_MOTION)
+
+
+def test_one_iteration_is_one_trimmed_closed_form_step():
+    """Pair within the gate, keep those within 3 robust sigmas (at least 60 %), align."""
+    target, current = room_scans(clutter=True)
+    start = se2.compose(ROOM_MOTION, se2.pose(0.01, -0.01, 0.002))
+    distance, nearest = cKDTree(target).query(se2.transform_points(start, current),
+                                              distance_upper_bound=0.5)
+    found = np.flatnonzero(np.isfinite(distance))
+    keep = adaptive_keep_fraction(distance[found], 0.6, 1.0, 3.0)
+    kept = found[trimmed_mask(distance[found], keep)]
+    assert 0.6 < keep < 1.0  # the clutter is trimmed
+    expected = align_pairs(current[kept], target[nearest[kept]], np.ones(len(kept)))
+    got = room_iterate(1, start=start, clutter=True)[1]
+    assert np.allclose(got, expected, atol=1e-12)
+
+
+def test_iterations_stop_when_pairs_run_out():
+    count = len(box_room())
+    assert room_iterate(3, min_correspondences=count)[0]  # every point paired: enough
+    paired, estimate, iterations, converged = room_iterate(3, min_correspondences=count + 1)
+    assert (paired, iterations, converged) == (False, 1, False)
+    assert np.array_equal(estimate, se2.pose())
+
+
+def pose_error_mm(pose: np.ndarray, truth: np.ndarray) -> float:
+    """Return the translation error [mm] plus the heading error [mrad] of ``pose``."""
+    error = se2.relative(truth, pose)
+    return 1e3 * (math.hypot(error[0], error[1]) + abs(error[2]))
 
 
 def test_exact_recovery_on_noise_free_scans():
