@@ -16,7 +16,7 @@ from laser_odom.core.matchers.nicp import NicpConfig, NicpMatcher
 from laser_odom.core.matchers.nicp_model import (
     associate, chi_squared, dense_information, normal_equations, pair_rules,
     residuals_and_jacobians)
-from laser_odom.core.matchers.nicp_solver import undoes
+from laser_odom.core.matchers.nicp_solver import damped_step, undoes
 from laser_odom.core.matchers.nicp_surface import (
     nicp_surface, normal_variance, point_information, rotation_seed)
 from laser_odom.core.metrics import evaluate
@@ -359,6 +359,44 @@ def test_only_flips_between_pairings_count_as_oscillation():
     assert not undoes(-0.1 * step, step)             # a Gauss-Newton overshoot fix
     assert not undoes(step, step)
     assert not undoes(np.array([2e-3, 1e-3, 0.0]), step)   # orthogonal
+
+
+def turned_step(length: float, degrees: float) -> np.ndarray:
+    """Return a step of ``length`` at ``degrees`` from the x axis (no rotation)."""
+    return length * np.array([math.cos(math.radians(degrees)),
+                              math.sin(math.radians(degrees)), 0.0])
+
+
+def test_a_flip_is_over_120_degrees_back_and_at_least_half_as_long():
+    previous = turned_step(1e-3, 0.0)
+    assert undoes(turned_step(1e-3, 121.0), previous)
+    assert not undoes(turned_step(1e-3, 119.0), previous)
+    assert undoes(turned_step(0.51e-3, 180.0), previous)
+    assert not undoes(turned_step(0.49e-3, 180.0), previous)
+    assert undoes(turned_step(3e-3, 180.0), previous)  # longer counts too
+    assert not undoes(turned_step(1e-3, 180.0), np.zeros(3))  # no previous step
+
+
+def test_damped_step_solves_the_damped_normal_equations():
+    """(H + mu diag H) dx = -g (NICP's fixed relative damping), by Cramer's rule."""
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(3, 3))
+    hessian = a @ a.T + np.diag([3.0, 1.0, 0.5])
+    gradient = rng.normal(size=3)
+    for damping in (0.0, 0.1, 2.0):
+        expected = -np.linalg.solve(hessian + damping * np.diag(np.diag(hessian)), gradient)
+        assert damped_step(hessian, gradient, damping) == pytest.approx(expected, rel=1e-12)
+    asymmetric = hessian + np.array([[0.0, 0.3, -0.2], [0.1, 0.0, 0.4], [0.5, -0.1, 0.0]])
+    assert damped_step(asymmetric, gradient, 0.0) == pytest.approx(
+        -np.linalg.solve(asymmetric, gradient), rel=1e-12)
+    assert np.array_equal(hessian, a @ a.T + np.diag([3.0, 1.0, 0.5]))  # left unchanged
+
+
+def test_a_singular_or_non_finite_system_gives_no_step():
+    singular = np.diag([1.0, 1.0, 0.0])  # nothing constrains the heading
+    assert np.isnan(damped_step(singular, np.ones(3), 0.5)).all()
+    infinite = np.diag([1.0, np.inf, 1.0])
+    assert np.isnan(damped_step(infinite, np.ones(3), 0.0)).all()
 
 
 def test_too_few_points_fail_cleanly():
