@@ -485,3 +485,25 @@ def test_real_logs_are_tracked(shared_data_dir, path, scans, bounds):
     assert errors.rpe_trans_mean < bounds[0]
     assert errors.rpe_rot_mean < bounds[1]
     assert errors.ate_rms < bounds[2]
+
+
+def test_iterations_are_counted_from_one_and_capped():
+    """The cap is the last iteration run: one fewer leaves the match unconverged."""
+    laser = LaserModel(beams=360, fov=2.0 * math.pi, max_range=20.0, noise_sigma=0.005)
+    reference = _scan(ROOM, START, laser, seed=1)
+    motion = se2.pose(0.15, 0.05, 0.08)
+    current = _scan(ROOM, se2.compose(START, motion), laser, seed=2)
+
+    def match(cap: int):
+        config = NicpConfig(restart_window=0.0, max_iterations=cap)
+        return NicpMatcher(config).match(reference, current, se2.pose())
+
+    free = match(100)
+    assert free.converged and free.iterations >= 3
+    assert np.hypot(*(free.pose - motion)[:2]) < 0.01
+    capped = match(free.iterations)
+    assert capped.converged and capped.iterations == free.iterations
+    assert np.array_equal(capped.pose, free.pose)
+    short = match(free.iterations - 1)
+    assert not short.converged and short.iterations == free.iterations - 1
+    assert not np.array_equal(short.pose, free.pose)
