@@ -75,7 +75,7 @@ def test_a_shrinking_creep_is_extrapolated_to_the_end_of_its_tail():
     previous = np.array([0.1, 0.0, 0.0])
     assert accelerated_extra(previous, previous * 0.5) == pytest.approx([0.05, 0.0, 0.0])
     assert accelerated_extra(previous, previous * 0.2) == pytest.approx([0.005, 0.0, 0.0])
-    step = turned(previous * 0.5, 9.0)  # within 10 deg of the last: still one creep
+    step = turned(previous * 0.5, 9.5)  # within 10 deg of the last: still one creep
     assert accelerated_extra(previous, step) == pytest.approx(step)
     three = np.array([0.02, -0.01, 0.004])  # all three axes, in metric units
     assert accelerated_extra(three, three * 0.25) == pytest.approx(three * 0.25 / 3.0)
