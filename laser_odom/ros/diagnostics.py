@@ -193,10 +193,11 @@ class DiagnosticsReporter:
                                                'slower than the scans arrive)')
         if delta[DROPPED] > 0:
             raise_level(DiagnosticStatus.WARN, f'{delta[DROPPED]} {DROPPED_KEY} (gaps in '
-                                               'the scan stamps: lost by the driver or the '
-                                               'network)')
+                                               "the publisher's sequence numbers or the scan "
+                                               'stamps: lost by the driver or the network)')
         if received == 0:
-            raise_level(DiagnosticStatus.WARN, f'no scans received on {now.scan_topic}')
+            raise_level(DiagnosticStatus.WARN, f'no scans received on {now.scan_topic} '
+                                               f'in the last {period:.1f} s')
 
         skipped = skip_reasons(now.counters)
         rejected = {k[len(REJECTED_PREFIX):]: v for k, v in sorted(now.counters.items())

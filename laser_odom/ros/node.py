@@ -334,7 +334,10 @@ def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C; return the exit code (2 for bad parameters)."""
     argv = sys.argv if args is None else args
     if wants_help(argv):
-        print(usage())
+        try:
+            print(usage(), flush=True)
+        except BrokenPipeError:  # `--help | head`: the reader left; say nothing more
+            sys.stdout = None
         return 0
     try:
         # The files' layout is judged by the same reader the replay and tools use,
