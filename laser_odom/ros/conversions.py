@@ -156,18 +156,6 @@ def odometry_to_msg(estimate: OdometryEstimate, stamp: Time, odom_frame: str,
     return msg
 
 
-def pose_stamped_to_msg(estimate: OdometryEstimate, stamp: Time,
-                        odom_frame: str) -> PoseStamped | None:
-    """Return the estimated pose as ``geometry_msgs/PoseStamped`` (None if not finite)."""
-    if not se2.is_finite_pose(estimate.pose):
-        return None
-    msg = PoseStamped()
-    msg.header.stamp = stamp
-    msg.header.frame_id = odom_frame
-    msg.pose = planar_pose_msg(estimate.pose)
-    return msg
-
-
 def pose_stamped_from_odometry(msg: Odometry) -> PoseStamped:
     """Return the ``PoseStamped`` the node publishes beside an ``Odometry`` message."""
     pose = PoseStamped()

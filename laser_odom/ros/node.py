@@ -27,7 +27,7 @@ from collections import deque
 import sys
 import threading
 import time
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
@@ -73,6 +73,17 @@ WARM_UP_NOTE_SECONDS = 2.0
 """A start whose kernel warm-up took longer than this says so (it compiled them)."""
 
 
+class WaitingScan(NamedTuple):
+    """A received scan waiting for its prior (see :meth:`LaserOdomNode._on_prior_wait`)."""
+
+    msg: LaserScanMsg
+    skipped: dict[str, int]
+    received: float
+    """When it was received (monotonic clock [s]), for the receipt-to-publish latency."""
+    arrivals: int
+    """Prior messages received when it last checked (-1: not yet checked)."""
+
+
 class LaserOdomNode(Node):
     """Scan-to-scan laser odometry as a ROS 2 node (node name ``laser_odom``)."""
 
@@ -110,7 +121,7 @@ class LaserOdomNode(Node):
         self._gaps = ScanGapCounter()
         self._received = 0
         self._busy_until_ns = 0
-        self._waiting: tuple[LaserScanMsg, dict[str, int], float, int] | None = None
+        self._waiting: WaitingScan | None = None
         self._next_turn = self.create_guard_condition(self._on_prior_wait)
         self._warm_up(settings.pipeline.matcher)
         self._scan_sub = self.create_subscription(
@@ -197,8 +208,8 @@ class LaserOdomNode(Node):
                                      info.get('publication_sequence_number'), waited)
         self._received += 1 + skipped.get(BUSY, 0)
         if self._waiting is not None:  # a newer scan: the waiting one goes with what is there
-            self._match(*self._waiting[:3])
-        self._waiting = (msg, skipped, received, -1)
+            self._match(self._waiting)
+        self._waiting = WaitingScan(msg, skipped, received, -1)
         self._on_prior_wait()
 
     def _on_prior_wait(self) -> None:
@@ -210,23 +221,24 @@ class LaserOdomNode(Node):
         the scan waits a turn of the executor (the guard condition); then it is matched
         with the prior interpolated, not extrapolated, as the replay does.
         """
-        if self._waiting is None:
+        waiting = self._waiting
+        if waiting is None:
             return
-        msg, skipped, received, arrivals = self._waiting
         prior = self.pipeline.config.motion.prior
-        stamp_ns = stamp_to_ns(msg.header.stamp)
-        if self._priors.behind(prior, stamp_ns) and self._priors.arrivals != arrivals:
-            self._waiting = (msg, skipped, received, self._priors.arrivals)
+        arrivals = self._priors.arrivals
+        if (self._priors.behind(prior, stamp_to_ns(waiting.msg.header.stamp))
+                and arrivals != waiting.arrivals):
+            self._waiting = waiting._replace(arrivals=arrivals)
             self._next_turn.trigger()
             return
         self._waiting = None
-        self._match(msg, skipped, received)
+        self._match(waiting)
 
-    def _match(self, msg: LaserScanMsg, skipped: dict[str, int], received: float) -> None:
+    def _match(self, scan: WaitingScan) -> None:
         """Process one scan, then do the next keyframe's own work (errors are logged)."""
         try:
-            if self._process(msg, skipped):
-                self._latencies.append(time.monotonic() - received)
+            if self._process(scan.msg, scan.skipped):
+                self._latencies.append(time.monotonic() - scan.received)
             with self._lock:  # the next keyframe's own work, once the result is out
                 self.pipeline.prepare_next()
         except Exception as error:  # keep running: one bad scan must not stop odometry

@@ -60,19 +60,23 @@ class PriorInputs:
             elif name != prior and name in self._subscriptions:
                 self._node.destroy_subscription(self._subscriptions.pop(name))
                 with self._lock:
-                    (self.odometry if name == 'odom' else self.imu).clear()
+                    self._buffer(name).clear()
 
     def topic_name(self, prior: str) -> str | None:
         """Return the resolved topic of the active prior subscription, if any."""
         subscription = self._subscriptions.get(prior)
         return subscription.topic_name if subscription is not None else None
 
+    def _buffer(self, prior: str) -> OdometryBuffer | ImuBuffer:
+        """Return the buffer of an external prior (``odom`` or ``imu``)."""
+        return self.odometry if prior == 'odom' else self.imu
+
     def behind(self, prior: str, stamp_ns: int) -> bool:
         """Return whether the active external prior has data, but none at ``stamp_ns`` yet."""
         if prior not in PRIOR_TOPICS:
             return False
         with self._lock:
-            newest = (self.odometry if prior == 'odom' else self.imu).newest_ns
+            newest = self._buffer(prior).newest_ns
         return newest is not None and newest < stamp_ns
 
     def _on_odometry(self, msg: Odometry) -> None:
@@ -100,8 +104,7 @@ class PriorInputs:
     def warn_missing(self, prior: str, end_ns: int) -> None:
         """Log (throttled) that the prior is missing or stale and constant velocity is used."""
         with self._lock:
-            buffer = self.odometry if prior == 'odom' else self.imu
-            newest = buffer.newest_ns
+            newest = self._buffer(prior).newest_ns
         topic = self.topic_name(prior) or PRIOR_TOPICS.get(prior, prior)
         detail = ('no message received yet' if newest is None
                   else f'newest message is {(end_ns - newest) * 1e-9:+.3f} s from the scan')
