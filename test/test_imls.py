@@ -17,8 +17,8 @@ from laser_odom.core.matchers.imls import ImlsConfig, ImlsMatcher
 from laser_odom.core.matchers.imls_solver import (
     fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system)
 from laser_odom.core.matchers.imls_surface import (
-    implicit_surface, model_from_arrays, observability_scores, planarity,
-    project_onto_surface, select_informative, surface_model)
+    candidate_ranking, implicit_surface, model_from_arrays, observability_scores, planarity,
+    project_onto_surface, select_on_surface, surface_model)
 from laser_odom.core.metrics import evaluate
 from laser_odom.core.params import as_dict, ParameterError
 from laser_odom.core.pipeline import OdometryPipeline
@@ -160,7 +160,10 @@ def test_selection_keeps_every_degree_of_freedom_in_a_corridor():
     normals, usable = model.normals[:-1], model.usable[:-1]
     scores = observability_scores(current.points, normals, model.curvature[:-1])
     per_list = 20
-    chosen = select_informative(scores, usable, per_list)
+    # Against its own surface every usable point is on it: the lists alone decide.
+    chosen, _ = select_on_surface(model, candidate_ranking(model), current.points,
+                                  se2.pose(), per_list, H, RADIUS, 4, 2)
+    assert np.all(usable[chosen])
     assert len(np.unique(chosen)) == len(chosen)
     assert 3 * per_list <= len(chosen) <= 4 * per_list
     x_facing = np.abs(normals[chosen, 0]) > 0.9
@@ -183,6 +186,45 @@ def test_selection_keeps_every_degree_of_freedom_in_a_corridor():
         jac = np.column_stack((normals[index], scores[index, 2] / 5.0))
         return np.linalg.eigvalsh(jac.T @ jac)[0] / len(index)
     assert weakest(chosen) > 2.0 * weakest(np.flatnonzero(usable))
+
+
+def _selected_by_definition(scores, eligible, per_list):
+    """Fill the lists in turn from a full ranking of the eligible points (the spec)."""
+    taken = np.zeros(len(eligible), dtype=bool)
+    for column in range(scores.shape[1]):
+        candidates = np.flatnonzero(eligible & ~taken & (scores[:, column] > 0.0))
+        best = candidates[np.argsort(-scores[candidates, column], kind='stable')]
+        taken[best[:per_list]] = True
+    return np.flatnonzero(taken)
+
+
+@pytest.mark.parametrize('offset', [se2.pose(0.0, 0.0, 0.0), se2.pose(0.6, -0.3, 0.1),
+                                    se2.pose(-1.5, 0.4, -0.3)])
+def test_selection_evaluates_the_surface_only_where_the_lists_look(offset):
+    # The lazy selection against another scan's surface, moved so that part of the
+    # scan falls off the reference: the same points as ranking every point that has a
+    # surface value (the whole scan evaluated) and filling the lists in turn.
+    reference = _scan(ROOM, se2.pose(0.0, 0.0, 0.0))
+    current = _scan(ROOM, se2.pose(0.3, 0.2, 0.15), seed=1)
+    ref_model = surface_model(reference, 10, 0.6, 2)
+    model = surface_model(current, 10, 0.6, 2)
+    pose = se2.compose(se2.pose(0.3, 0.2, 0.15), offset)
+    full = implicit_surface(ref_model, se2.transform_points(pose, current.points), H, RADIUS,
+                            4, 2)
+    scores = observability_scores(current.points, model.normals[:-1], model.curvature[:-1])
+    for per_list in (1, 15, 60, 1000):
+        chosen, sample = select_on_surface(ref_model, candidate_ranking(model),
+                                           current.points, pose, per_list, H, RADIUS, 4, 2)
+        expected = _selected_by_definition(scores, model.usable[:-1] & full.defined,
+                                           per_list)
+        np.testing.assert_array_equal(chosen, expected)
+        np.testing.assert_array_equal(sample.value, full.value[chosen])
+        np.testing.assert_array_equal(sample.nearest, full.nearest[chosen])
+        np.testing.assert_array_equal(sample.normal, full.normal[chosen])
+        np.testing.assert_array_equal(sample.mean_normal, full.mean_normal[chosen])
+        np.testing.assert_array_equal(sample.count, full.count[chosen])
+        assert sample.defined.all()
+    assert 0 < np.count_nonzero(~full.defined & model.usable[:-1]) or offset[0] == 0.0
 
 
 def test_gauss_newton_step_leaves_an_unconstrained_direction_alone():

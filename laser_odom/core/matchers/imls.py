@@ -50,7 +50,7 @@ from laser_odom.core.matchers.imls_solver import (
     advance, fuse_directions, inverted_information, refine, ROTATION_LEVER,
     surface_information)
 from laser_odom.core.matchers.imls_surface import (
-    implicit_surface, observability_scores, select_informative, surface_model, SurfaceModel,
+    candidate_ranking, implicit_surface, select_on_surface, surface_model, SurfaceModel,
     SurfaceSample)
 from laser_odom.core.matchers.information import covariance_from_information
 from laser_odom.core.matchers.registry import register
@@ -265,26 +265,24 @@ class ImlsMatcher(ScanMatcher):
         if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
             return MatchResult.failure(estimate, reason='too few points')
         ref_model = self._model(reference)
-        cur_model = self._model(current)
+        ranking = candidate_ranking(self._model(current))
         points = current.points
         # Selection (section III-B) among current points that reach the surface at the
         # initial guess, within the capture radius.
         capture = max(cfg.radius, cfg.max_correspondence_distance)
         if search_angle > 0.0:
             estimate = self._rotation_search(reference, points, estimate, search_angle)
-        scores = observability_scores(points, cur_model.normals[:-1],
-                                      cur_model.curvature[:-1])
         iterations = 0
         for attempt in range(2):
             start = estimate
-            sample = self._surface(ref_model, se2.transform_points(estimate, points), capture)
-            selected = select_informative(scores, cur_model.usable[:-1] & sample.defined,
-                                          cfg.points_per_list)
+            selected, sample = select_on_surface(
+                ref_model, ranking, points, estimate, cfg.points_per_list, cfg.h, capture,
+                cfg.max_neighbours, cfg.min_neighbours)
             if len(selected) < cfg.min_correspondences:
                 return MatchResult.failure(estimate, iterations, len(selected),
                                            'too few points on the surface')
             estimate, converged, count = self._refine(
-                ref_model, points[selected], sample.subset(selected), estimate, capture)
+                ref_model, points[selected], sample, estimate, capture)
             iterations += count
             moved = se2.relative(start, estimate)
             if max(float(np.hypot(moved[0], moved[1])),

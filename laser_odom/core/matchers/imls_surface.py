@@ -30,6 +30,7 @@ import numpy as np
 from laser_odom.core.nearest import BearingIndex, k_nearest_by_bearing
 from laser_odom.core.normals import estimate_normals
 from laser_odom.core.scan import ScanPoints
+from laser_odom.core.se2 import move_points
 
 
 @dataclass
@@ -49,6 +50,8 @@ class SurfaceModel:
     usable: np.ndarray
     curvature: np.ndarray
     offset: np.ndarray = field(init=False)
+    ranking: np.ndarray | None = field(default=None, init=False)
+    """The selection lists of :func:`candidate_ranking`, once asked for."""
 
     def __post_init__(self) -> None:
         """Precompute the tangent-line offsets."""
@@ -73,11 +76,6 @@ class SurfaceSample:
     count: np.ndarray
     mean_normal: np.ndarray
     nearest: np.ndarray
-
-    def subset(self, keep: np.ndarray) -> SurfaceSample:
-        """Return the sample of the queries selected by ``keep`` (mask or indices)."""
-        return SurfaceSample(self.value[keep], self.normal[keep], self.defined[keep],
-                             self.count[keep], self.mean_normal[keep], self.nearest[keep])
 
 
 def surface_model(scan: ScanPoints, normal_neighbours: int, normal_radius: float,
@@ -221,23 +219,106 @@ def observability_scores(points: np.ndarray, normals: np.ndarray,
                             a2 * cross, -a2 * cross))
 
 
-def select_informative(scores: np.ndarray, candidates: np.ndarray,
-                       per_list: int) -> np.ndarray:
-    """Keep the best ``per_list`` candidates of each score column, without duplicates.
+def candidate_ranking(model: SurfaceModel) -> np.ndarray:
+    """Return each score list's candidates, best first (cached on the model).
 
-    Lists are filled in turn (x, y, +rotation, -rotation); a point already taken by an
-    earlier list is skipped, so each list still contributes up to ``per_list`` distinct
-    points. Only strictly positive scores count (a point on a line through the sensor
-    says nothing about the rotation). Returns sorted point indices.
+    Row ``c`` of the (4, N) result holds the usable points of the model's scan with a
+    strictly positive score in column ``c`` of :func:`observability_scores`, by
+    decreasing score (ties: lower index first), then -1. Only strictly positive scores
+    count: a point on a line through the sensor says nothing about the rotation. The
+    ranking depends on the scan alone, so a scan ranks its points once, though it is
+    the selecting scan of two matches (forward as the current scan, backward as the
+    reference).
     """
-    taken = np.zeros(scores.shape[0], dtype=bool)
-    allowed = np.asarray(candidates, dtype=bool)
+    if model.ranking is not None:
+        return model.ranking
+    usable = model.usable[:-1]
+    scores = observability_scores(model.points[:-1], model.normals[:-1],
+                                  model.curvature[:-1])
+    ranking = np.full((scores.shape[1], scores.shape[0]), -1, dtype=np.int64)
     for column in range(scores.shape[1]):
-        score = np.where(allowed & ~taken & (scores[:, column] > 0.0),
-                         scores[:, column], -np.inf)
-        count = min(per_list, int(np.count_nonzero(np.isfinite(score))))
-        if count == 0:
-            continue
-        best = np.argpartition(-score, count - 1)[:count]
-        taken[best] = True
-    return np.flatnonzero(taken)
+        candidates = np.flatnonzero(usable & (scores[:, column] > 0.0))
+        ranked = candidates[np.argsort(-scores[candidates, column], kind='stable')]
+        ranking[column, :len(ranked)] = ranked
+    model.ranking = ranking
+    return ranking
+
+
+def select_on_surface(model: SurfaceModel, ranking: np.ndarray, points: np.ndarray,
+                      pose: np.ndarray, per_list: int, h: float, radius: float,
+                      max_neighbours: int, min_neighbours: int
+                      ) -> tuple[np.ndarray, SurfaceSample]:
+    """Select the informative points (IMLS-SLAM section III-B) that reach the surface.
+
+    Lists are filled in turn (x, y, +rotation, -rotation) from ``ranking``
+    (:func:`candidate_ranking` of the selecting scan, whose ``points`` are moved by
+    ``pose``): each keeps its best ``per_list`` points that an earlier list has not
+    taken and that have a surface value of ``model`` within ``radius``. The surface
+    is evaluated only where a list looks, a few hundred points, not the whole scan.
+    Returns the sorted indices of the selected points and the surface there.
+    """
+    index = model.index
+    selected, value, normal, count, mean, nearest = select_on_surface_kernel(
+        index.sorted_points, index.bearings, index.directions, index.order, model.normals,
+        model.usable, model.offset, np.ascontiguousarray(points, dtype=float).reshape(-1, 2),
+        ranking, np.asarray(pose, dtype=float), per_list, h, radius,
+        max(1, min(max_neighbours, index.n)), max(min_neighbours, 1))
+    return selected, SurfaceSample(value, normal, np.ones(len(selected), dtype=bool), count,
+                                   mean, nearest)
+
+
+@numba.njit(cache=True, nogil=True)
+def select_on_surface_kernel(sorted_points: np.ndarray, bearings: np.ndarray,
+                             directions: np.ndarray, order: np.ndarray, normals: np.ndarray,
+                             usable: np.ndarray, offset: np.ndarray, points: np.ndarray,
+                             ranking: np.ndarray, pose: np.ndarray, per_list: int, h: float,
+                             radius: float, k: int, min_neighbours: int) -> tuple:
+    """Compiled kernel of :func:`select_on_surface`.
+
+    The lists are filled taking every point not yet evaluated as on the surface; the
+    points that this reached are evaluated together (one :func:`implicit_surface_kernel`
+    call), and the lists filled again, until they reach no unevaluated point. Then
+    every list stopped at its ``per_list``-th point known to be on the surface, so the
+    selection is that of the whole scan evaluated. Usually two rounds.
+    """
+    m = points.shape[0]
+    evaluated = np.zeros(m, dtype=np.bool_)
+    value = np.zeros(m)
+    normal = np.zeros((m, 2))
+    defined = np.zeros(m, dtype=np.bool_)
+    count = np.zeros(m, dtype=np.int64)
+    mean = np.zeros((m, 2))
+    nearest = np.full(m, order.shape[0], dtype=np.int64)
+    taken = np.zeros(m, dtype=np.bool_)
+    wanted = np.empty(m, dtype=np.int64)
+    while True:
+        taken[:] = False
+        unknown = 0
+        for column in range(ranking.shape[0]):
+            kept = 0
+            for rank in range(ranking.shape[1]):
+                i = ranking[column, rank]
+                if kept >= per_list or i < 0:
+                    break
+                if taken[i] or (evaluated[i] and not defined[i]):
+                    continue
+                if not evaluated[i]:
+                    wanted[unknown] = i
+                    unknown += 1
+                taken[i] = True
+                kept += 1
+        if unknown == 0:
+            break
+        batch = wanted[:unknown]
+        at, along, on, neighbours, mean_at, nearest_at = implicit_surface_kernel(
+            sorted_points, bearings, directions, order, normals, usable, offset,
+            move_points(pose, points[batch]), h, radius, k, min_neighbours)
+        for b in range(unknown):
+            i = batch[b]
+            evaluated[i], defined[i], value[i], count[i] = True, on[b], at[b], neighbours[b]
+            normal[i, 0], normal[i, 1] = along[b, 0], along[b, 1]
+            mean[i, 0], mean[i, 1] = mean_at[b, 0], mean_at[b, 1]
+            nearest[i] = nearest_at[b]
+    selected = np.flatnonzero(taken)
+    return (selected, value[selected], normal[selected], count[selected], mean[selected],
+            nearest[selected])
