@@ -13,7 +13,8 @@ from laser_odom.core.config import pipeline_config_from_params
 from laser_odom.core.matchers import create_matcher
 from laser_odom.core.matchers.plicp import PlicpConfig, rotation_candidates
 from laser_odom.core.matchers.plicp_segments import pair_with_segments, reference_segments
-from laser_odom.core.matchers.plicp_solver import solve_point_to_line
+from laser_odom.core.matchers.plicp_solver import (
+    iterate, solve_normal_equations, solve_point_to_line)
 from laser_odom.core.params import as_dict
 from laser_odom.core.scan import scan_to_points, ScanPoints
 from laser_odom.core.simulation import geometry
@@ -254,3 +255,120 @@ def test_a_match_that_does_not_converge_is_restarted_even_with_a_low_residual():
         reference, current, guess)
     assert not single.converged and single.iterations == 2
     assert restarted.iterations > 2  # the restart ran its own iterations
+
+
+def _constrained_cost(theta, big_m, small_m):
+    """Return min over t of x^T M x - 2 m^T x at x = (t, cos theta, sin theta)."""
+    r = np.array([math.cos(theta), math.sin(theta)])
+    a, b = big_m[:2, :2], big_m[:2, 2:]
+    t = np.linalg.solve(a, small_m[:2] - b @ r)
+    x = np.concatenate((t, r))
+    return float(x @ big_m @ x - 2.0 * small_m @ x)
+
+
+@pytest.mark.parametrize('seed', range(16))
+def test_closed_form_picks_the_global_minimum_among_several_stationary_headings(seed):
+    """Nearly isotropic rotation block, weak rotation pull: up to four real roots.
+
+    The secular quartic then has a root for each heading where the cost on the
+    circle is stationary (two minima and two maxima, the minima close in cost), so
+    the root chosen, not only the root found, decides the answer. A dense scan of
+    the heading with the translation solved exactly is the reference.
+    """
+    rng = np.random.default_rng(100 + seed)
+    design = rng.normal(0.0, 1.0, (12, 4))
+    design[:, 2:] *= rng.uniform(0.9, 1.1, 2)  # rotation columns of similar strength
+    truth = rng.uniform(-math.pi, math.pi)
+    x = np.array([rng.normal(), rng.normal(), math.cos(truth), math.sin(truth)])
+    offset = design @ x * rng.uniform(-0.05, 0.05) + rng.normal(0.0, 0.3, 12)
+    big_m, small_m = design.T @ design, design.T @ offset
+    got = solve_normal_equations(big_m, small_m)
+    headings = np.linspace(-math.pi, math.pi, 20001)
+    costs = np.array([_constrained_cost(h, big_m, small_m) for h in headings])
+    best = headings[np.argmin(costs)]
+    assert _constrained_cost(got[2], big_m, small_m) <= costs.min() + 1e-9
+    assert abs(se2.wrap_angle(got[2] - best)) < 1e-3
+    r = np.array([math.cos(got[2]), math.sin(got[2])])
+    np.testing.assert_allclose(got[:2], np.linalg.solve(big_m[:2, :2],
+                                                        small_m[:2] - big_m[:2, 2:] @ r),
+                               rtol=1e-6, atol=1e-9)
+
+
+def test_a_nearly_unconstrained_translation_is_damped_towards_zero_not_flipped():
+    """Lines almost parallel to x: the ridge shrinks the x increment, never reverses it."""
+    rng = np.random.default_rng(3)
+    points = np.column_stack((np.linspace(-5, 5, 40), np.tile([-1.0, 1.0], 20)))
+    tilt = rng.choice([-1.0, 1.0], 40) * 1e-7  # n_x^2 ~ 1e-14: below the 1e-12 ridge
+    normals = np.column_stack((tilt, np.sqrt(1.0 - tilt ** 2)))
+    truth = se2.pose(0.7, 0.05, 0.02)
+    got = solve_point_to_line(points, se2.transform_points(truth, points), normals)
+    assert 0.0 < got[0] < 0.05 * truth[0]
+    assert abs(got[1] - truth[1]) < 1e-6 and abs(got[2] - truth[2]) < 1e-6
+
+
+def _iterate(reference, current, guess, **overrides):
+    """Run the compiled PL-ICP loop with the default configuration and ``overrides``."""
+    cfg = PlicpConfig(**overrides)
+    segments = reference_segments(reference, cfg.max_beam_gap, cfg.max_segment_length,
+                                  cfg.information_window)
+    index = reference.bearing_index
+    found, estimate, converged, iterations, kept, *_ = iterate(
+        segments.table, index.sorted_points, index.bearings, index.directions, index.order,
+        current.points, np.asarray(guess, dtype=float), cfg.max_iterations,
+        cfg.min_correspondences, cfg.coarse_keep_fraction,
+        cfg.coarse_correspondence_distance, cfg.coarse_step,
+        cfg.max_correspondence_distance, cfg.min_keep_fraction, cfg.max_keep_fraction,
+        cfg.trim_sigma, cfg.convergence_translation, cfg.convergence_rotation)
+    return found, estimate, converged, int(iterations), len(kept)
+
+
+def test_iterations_count_from_one_and_stop_at_the_cap():
+    laser = LaserModel(noise_sigma=0.0)
+    reference, current = scan_pair('office', office_pose(20.0), MOTION, laser)
+    # From the exact pose the first step is zero: converged after one iteration.
+    found, estimate, converged, iterations, _ = _iterate(reference, current, MOTION,
+                                                         coarse_keep_fraction=0.0)
+    assert found and converged and iterations == 1
+    assert pose_error(estimate, MOTION)[0] < 1e-9
+    # From a guess off by a few centimetres, one iteration is not enough to converge.
+    found, _, converged, iterations, _ = _iterate(reference, current, GUESS,
+                                                  coarse_keep_fraction=0.0, max_iterations=1)
+    assert found and not converged and iterations == 1
+    found, estimate, converged, iterations, _ = _iterate(reference, current, GUESS,
+                                                         coarse_keep_fraction=0.0)
+    assert found and converged and 2 <= iterations < 50
+    assert pose_error(estimate, MOTION)[0] < 1e-6
+
+
+def test_the_coarse_phase_reaches_a_guess_beyond_the_fine_gate():
+    """0.4 m off: the coarse gate (0.5 m) reaches the optimum, the fine one (0.15 m) not."""
+    laser = LaserModel(noise_sigma=0.0)
+    reference, current = scan_pair('office', office_pose(20.0), MOTION, laser)
+    far = se2.compose(MOTION, se2.pose(0.4, 0.0, 0.0))
+    found, estimate, converged, _, _ = _iterate(reference, current, far)
+    assert found and converged and pose_error(estimate, MOTION)[0] < 1e-6
+    # Without the coarse phase the fine gate settles on wrong pairs, 0.39 m off.
+    found, estimate, _, _, _ = _iterate(reference, current, far, coarse_keep_fraction=0.0)
+    assert not found or pose_error(estimate, MOTION)[0] > 0.1
+    # The coarse phase keeps its fixed share of the pairs, the fine phase trims them
+    # adaptively: stopped after the first (coarse) iteration, 95 % of the pairs remain.
+    _, _, _, _, coarse_kept = _iterate(reference, current, far, max_iterations=1)
+    _, _, _, _, paired = _iterate(reference, current, far, max_iterations=1,
+                                  coarse_keep_fraction=1.0)
+    assert coarse_kept == math.ceil(0.95 * paired) or coarse_kept == int(0.95 * paired)
+
+
+def test_too_few_pairs_stop_the_loop_and_exactly_enough_do_not():
+    laser = LaserModel(noise_sigma=0.0)
+    reference, current = scan_pair('office', office_pose(20.0), MOTION, laser)
+    found, _, _, _, kept = _iterate(reference, current, MOTION, coarse_keep_fraction=0.0,
+                                    min_keep_fraction=1.0, max_keep_fraction=1.0)
+    assert found
+    found, _, converged, iterations, _ = _iterate(
+        reference, current, MOTION, coarse_keep_fraction=0.0, min_keep_fraction=1.0,
+        max_keep_fraction=1.0, min_correspondences=kept)
+    assert found and converged
+    found, _, converged, iterations, _ = _iterate(
+        reference, current, MOTION, coarse_keep_fraction=0.0, min_keep_fraction=1.0,
+        max_keep_fraction=1.0, min_correspondences=kept + 1)
+    assert not found and not converged and iterations == 1
