@@ -52,11 +52,11 @@ class MotionModel:
         Computed once per new interval: a scan asks for its effective interval several
         times (prediction, de-skewing, the rate check, the velocity update).
         """
-        if self._period is None:
-            window = np.asarray(self.intervals)
+        if self._period is None:  # in Python: numpy's overhead on a few dozen floats is larger
             median = statistics.median(self.intervals)
-            bursty = bool(np.mean(window < 0.5 * median) > JITTER_FRACTION)
-            self._period = (median, float(np.mean(window)), bursty)
+            short = sum(1 for dt in self.intervals if dt < 0.5 * median)
+            bursty = short / len(self.intervals) > JITTER_FRACTION
+            self._period = (median, statistics.fmean(self.intervals), bursty)
         return self._period
 
     def effective_dt(self, dt: float) -> float:

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+import math
 from typing import Any
 
+import numba
 import numpy as np
 
 from laser_odom.core import se2
@@ -99,7 +101,7 @@ class ScanPoints:
         """RMS distance of the points from the sensor [m]: how far a rotation moves them."""
         if len(self) == 0:
             return 1.0
-        return float(np.sqrt(np.mean(np.sum(np.square(self.points), axis=1))))
+        return math.sqrt(float(np.einsum('nd,nd->', self.points, self.points)) / len(self))
 
     @cached_property
     def bearing_index(self) -> BearingIndex:
@@ -157,21 +159,43 @@ def densify(scan: ScanPoints, spacing: float, max_gap: float,
     points = scan.points
     if spacing <= 0.0 or len(points) < 2:
         return points
-    segment = points[1:] - points[:-1]
-    length = np.hypot(segment[:, 0], segment[:, 1])
-    limit = np.full(len(segment), max_gap)
-    if gap_per_range > 0.0:
-        a, b = points[:-1], points[1:]
-        apart = np.abs(np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-                                  np.einsum('nd,nd->n', a, b)))
-        nearer = np.minimum(scan.ranges[:-1], scan.ranges[1:])
-        limit = np.maximum(limit, gap_per_range * nearer * apart)
-    on_surface = (np.diff(scan.beam_index) == 1) & (length < limit) & np.isfinite(length)
-    spacing = max(spacing, float(length[on_surface].sum()) / MAX_DENSE_POINTS)
-    per_segment = np.minimum(length / spacing, MAX_DENSE_POINTS)  # no int overflow
-    inserted = np.where(on_surface,
-                        np.maximum(np.ceil(per_segment - 1e-9).astype(int) - 1, 0), 0)
-    owner = np.repeat(np.arange(len(segment)), inserted)
-    rank = np.arange(int(inserted.sum())) - np.repeat(np.cumsum(inserted) - inserted, inserted)
-    fraction = (rank + 1.0) / (inserted[owner] + 1.0)
-    return np.vstack((points, points[:-1][owner] + segment[owner] * fraction[:, None]))
+    return _densify(np.ascontiguousarray(points, dtype=float),
+                    np.asarray(scan.beam_index, dtype=np.int64),
+                    np.asarray(scan.ranges, dtype=float), float(spacing), float(max_gap),
+                    float(gap_per_range), float(MAX_DENSE_POINTS))
+
+
+@numba.njit(cache=True, nogil=True)
+def _densify(points: np.ndarray, beam_index: np.ndarray, ranges: np.ndarray, spacing: float,
+             max_gap: float, gap_per_range: float, max_points: float) -> np.ndarray:
+    """Compiled :func:`densify`: the scan's points, then each segment's inserted points."""
+    segments = points.shape[0] - 1
+    length = np.empty(segments)
+    on_surface = np.zeros(segments, dtype=np.bool_)
+    total = 0.0
+    for i in range(segments):
+        ax, ay, bx, by = points[i, 0], points[i, 1], points[i + 1, 0], points[i + 1, 1]
+        length[i] = math.hypot(bx - ax, by - ay)
+        limit = max_gap
+        if gap_per_range > 0.0:
+            apart = abs(math.atan2(ax * by - ay * bx, ax * bx + ay * by))
+            limit = max(limit, gap_per_range * min(ranges[i], ranges[i + 1]) * apart)
+        on_surface[i] = (beam_index[i + 1] - beam_index[i] == 1 and length[i] < limit
+                         and math.isfinite(length[i]))
+        if on_surface[i]:
+            total += length[i]
+    spacing = max(spacing, total / max_points)
+    inserted = np.zeros(segments, dtype=np.int64)
+    for i in range(segments):
+        if on_surface[i]:  # the cap keeps the count an integer for any length
+            inserted[i] = max(math.ceil(min(length[i] / spacing, max_points) - 1e-9) - 1, 0)
+    dense = np.empty((points.shape[0] + inserted.sum(), 2))
+    dense[:points.shape[0]] = points
+    k = points.shape[0]
+    for i in range(segments):
+        for rank in range(inserted[i]):
+            fraction = (rank + 1.0) / (inserted[i] + 1.0)
+            dense[k, 0] = points[i, 0] + (points[i + 1, 0] - points[i, 0]) * fraction
+            dense[k, 1] = points[i, 1] + (points[i + 1, 1] - points[i, 1]) * fraction
+            k += 1
+    return dense

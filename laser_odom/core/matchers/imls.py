@@ -264,8 +264,8 @@ class ImlsMatcher(ScanMatcher):
         estimate = np.array(initial_guess, dtype=float)
         if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
             return MatchResult.failure(estimate, reason='too few points')
-        ref_model = self._model(reference)
-        ranking = candidate_ranking(self._model(current))
+        ref_model, cur_model = self._model(reference), self._model(current)
+        ranking = candidate_ranking(cur_model)
         points = current.points
         # Selection (section III-B) among current points that reach the surface at the
         # initial guess, within the capture radius.
@@ -288,8 +288,8 @@ class ImlsMatcher(ScanMatcher):
             if max(float(np.hypot(moved[0], moved[1])),
                    ROTATION_LEVER * abs(float(moved[2]))) <= cfg.radius:
                 break
-        return self._result(reference, current, estimate, converged, iterations,
-                            len(selected))
+        return self._result(reference, current, ref_model, cur_model, estimate, converged,
+                            iterations, len(selected))
 
     def _refine(self, ref_model: SurfaceModel, chosen: np.ndarray, sample: SurfaceSample,
                 estimate: se2.Pose, capture: float) -> tuple[se2.Pose, bool, int]:
@@ -319,13 +319,14 @@ class ImlsMatcher(ScanMatcher):
             cfg.convergence_rotation)
         return estimate, bool(converged), int(iterations)
 
-    def _result(self, reference: ScanPoints, current: ScanPoints, estimate: se2.Pose,
-                converged: bool, iterations: int, selected: int) -> MatchResult:
+    def _result(self, reference: ScanPoints, current: ScanPoints, ref_model: SurfaceModel,
+                cur_model: SurfaceModel, estimate: se2.Pose, converged: bool, iterations: int,
+                selected: int) -> MatchResult:
         """Score the final estimate over all current points with a surface value."""
         cfg = self.config
-        usable = self._model(current).usable[:-1]
+        usable = cur_model.usable[:-1]
         moved = se2.transform_points(estimate, current.points)
-        sample = self._surface(self._model(reference), moved)
+        sample = self._surface(ref_model, moved)
         normals = sample.normal
         if cfg.information_neighbours > 0:
             smooth = estimate_normals(reference, cfg.information_neighbours,
