@@ -90,9 +90,10 @@ def inverted_information(backward_pose: se2.Pose, information: np.ndarray) -> np
 
     ``J`` is the Jacobian of the inverse (:func:`se2.inverse_jacobian`); a match of
     the reference against the current scan estimates ``U = T^-1``, and this gives
-    its information about ``T``.
+    its information about ``T``. Inversion undoes itself, so by the chain rule
+    ``J(U)^-1`` is the Jacobian at ``U^-1``: no matrix inverse is needed.
     """
-    jacobian_inverse = np.linalg.inv(se2.inverse_jacobian(backward_pose))
+    jacobian_inverse = se2.inverse_jacobian(se2.inverse(backward_pose))
     carried = jacobian_inverse.T @ information @ jacobian_inverse
     return 0.5 * (carried + carried.T)
 

@@ -205,6 +205,7 @@ def planarity(curvature: np.ndarray) -> np.ndarray:
     return 1.0 - np.sqrt(c / np.maximum(1.0 - c, 1e-12))
 
 
+@numba.njit(cache=True, nogil=True)
 def observability_scores(points: np.ndarray, normals: np.ndarray,
                          curvature: np.ndarray) -> np.ndarray:
     """Return the (N, 4) selection scores of IMLS-SLAM section III-B, in 2D.
@@ -214,9 +215,12 @@ def observability_scores(points: np.ndarray, normals: np.ndarray,
     motion along x, along y, and to a rotation either way (its lever arm).
     """
     a2 = np.square(planarity(curvature))
-    cross = points[:, 0] * normals[:, 1] - points[:, 1] * normals[:, 0]
-    return np.column_stack((a2 * np.abs(normals[:, 0]), a2 * np.abs(normals[:, 1]),
-                            a2 * cross, -a2 * cross))
+    scores = np.empty((points.shape[0], 4))
+    for i in range(points.shape[0]):
+        cross = points[i, 0] * normals[i, 1] - points[i, 1] * normals[i, 0]
+        scores[i, 0], scores[i, 1] = a2[i] * abs(normals[i, 0]), a2[i] * abs(normals[i, 1])
+        scores[i, 2], scores[i, 3] = a2[i] * cross, -a2[i] * cross
+    return scores
 
 
 def candidate_ranking(model: SurfaceModel) -> np.ndarray:
@@ -230,17 +234,28 @@ def candidate_ranking(model: SurfaceModel) -> np.ndarray:
     the selecting scan of two matches (forward as the current scan, backward as the
     reference).
     """
-    if model.ranking is not None:
-        return model.ranking
-    usable = model.usable[:-1]
-    scores = observability_scores(model.points[:-1], model.normals[:-1],
-                                  model.curvature[:-1])
-    ranking = np.full((scores.shape[1], scores.shape[0]), -1, dtype=np.int64)
-    for column in range(scores.shape[1]):
-        candidates = np.flatnonzero(usable & (scores[:, column] > 0.0))
-        ranked = candidates[np.argsort(-scores[candidates, column], kind='stable')]
-        ranking[column, :len(ranked)] = ranked
-    model.ranking = ranking
+    if model.ranking is None:
+        model.ranking = _rank_candidates(
+            observability_scores(model.points[:-1], model.normals[:-1],
+                                 model.curvature[:-1]), model.usable[:-1])
+    return model.ranking
+
+
+@numba.njit(cache=True, nogil=True)
+def _rank_candidates(scores: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """Compiled :func:`candidate_ranking` of given scores (a stable sort per column)."""
+    count, columns = scores.shape
+    ranking = np.full((columns, count), -1, dtype=np.int64)
+    candidates = np.empty(count, dtype=np.int64)
+    for column in range(columns):
+        found = 0
+        for i in range(count):
+            if usable[i] and scores[i, column] > 0.0:
+                candidates[found] = i
+                found += 1
+        order = np.argsort(-scores[candidates[:found], column], kind='mergesort')
+        for rank in range(found):
+            ranking[column, rank] = candidates[order[rank]]
     return ranking
 
 
