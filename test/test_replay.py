@@ -163,3 +163,21 @@ def test_prior_feed_interpolates_odometry_and_imu_between_scans():
     feed.prior_for(None, start)
     step, yaw = feed.prior_for(start, end)
     assert step is None and yaw == pytest.approx(0.05, abs=1e-12)
+
+
+def test_a_reader_that_leaves_early_gets_no_traceback(sim_bag, tmp_path):
+    """``laser_odom_replay BAG | head -1``: the pipe closes; the replay stops quietly.
+
+    The outputs written to files are complete: the summary on stdout comes last.
+    """
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    tum = tmp_path / 'replay.tum'
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'laser_odom.tools.replay', str(sim_bag), '--matcher', 'plicp',
+         '--tum', str(tum)], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    process.stdout.close()  # the reader is gone before the first line
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 1, stderr
+    assert 'Traceback' not in stderr and 'BrokenPipeError' not in stderr, stderr
+    assert len(read_tum(tum)) == 600

@@ -54,7 +54,7 @@ from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import write_text_atomically
 from laser_odom.tools.bench_table import (
     format_nees_table, format_search_table, format_table, machine_line, provenance)
-from laser_odom.tools.quiet import warnings_silenced
+from laser_odom.tools.quiet import reader_may_leave, warnings_silenced
 
 LOGGER = logging.getLogger('laser_odom.tools.bench')
 """Where the benchmark's own warnings go (stderr; ``--quiet`` silences them)."""
@@ -285,7 +285,7 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark and print its table; 2 on a usage or data error."""
     args = parse_args(argv)
-    with warnings_silenced(args.quiet):
+    with reader_may_leave(), warnings_silenced(args.quiet):
         return main_live(args) if args.live else main_offline(args)
 
 

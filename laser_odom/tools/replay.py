@@ -42,7 +42,7 @@ from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.tools.arguments import number_in
 from laser_odom.tools.plots import (
     check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
-from laser_odom.tools.quiet import warnings_silenced
+from laser_odom.tools.quiet import reader_may_leave, warnings_silenced
 from laser_odom.tools.replay_report import (
     DEFAULT_MIN_COVERAGE, print_summary, read_reference, ReplayError, ReplayRecord,
     write_outputs)
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.rate is not None and not args.live:
         parser.error('--rate needs --live (it plays the scans to a running node)')
     try:
-        with warnings_silenced(args.quiet):
+        with reader_may_leave(), warnings_silenced(args.quiet):
             return replay(args)
     except (ReplayError, BagError, ParamsFileError, OutputExistsError, PlotError) as err:
         print(f'{PROG}: error: {err}', file=sys.stderr)

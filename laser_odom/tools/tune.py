@@ -39,7 +39,7 @@ from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import write_text_atomically
 from laser_odom.ros.default_params import yaml_value
 from laser_odom.tools.arguments import number_in
-from laser_odom.tools.quiet import warnings_silenced
+from laser_odom.tools.quiet import reader_may_leave, warnings_silenced
 from laser_odom.tools.replay_report import DEFAULT_MIN_COVERAGE
 
 PROG = 'laser_odom_tune'
@@ -276,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.trials < 1 or args.jobs < 1:
         parser.error('--trials and --jobs must be at least 1')
     try:
-        with warnings_silenced(args.quiet):
+        with reader_may_leave(), warnings_silenced(args.quiet):
             return tune(args)
     except (TuneError, SpaceError, StorageError, StudyMismatchError, BagError,
             ParamsFileError) as err:
