@@ -328,3 +328,20 @@ def test_bad_reference_noise_or_a_missing_real_log_is_one_named_error(
                  *arguments]) == 2
     error = capsys.readouterr().err.strip()
     assert error.count('\n') == 0 and expected in error, error
+
+
+def test_a_reader_that_leaves_early_loses_no_json(tmp_path):
+    """``laser_odom_bench ... --json F | head -1``: no traceback, exit 1, the JSON written."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    result = tmp_path / 'bench.json'
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'laser_odom.tools.bench', '--datasets', 'sim-office-360',
+         '--matchers', 'plicp', '--priors', 'constant_velocity', '--no-search-table',
+         '--quiet', '--json', str(result)], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    process.stdout.close()  # the reader is gone before the first line
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 1, stderr
+    assert 'Traceback' not in stderr and 'BrokenPipeError' not in stderr, stderr
+    rows = json.loads(result.read_text())['rows']
+    assert [row['matcher'] for row in rows] == ['plicp'] and rows[0]['steps'] == 599

@@ -299,16 +299,16 @@ def main_offline(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print('laser_odom_bench: interrupted', file=sys.stderr)
         return 130
+    if args.json is not None:  # first: a reader leaving the printed table loses nothing
+        payload = {**provenance(), 'rows': [row.as_dict() for row in rows],
+                   'search': [row.as_dict() for row in searches]}
+        write_text_atomically(args.json, json.dumps(payload, indent=2) + '\n')
     print(machine_line())
     print(format_table(rows))
     if args.nees:
         print(format_nees_table(rows))
     if searches:
         print(format_search_table(searches))
-    if args.json is not None:
-        payload = {**provenance(), 'rows': [row.as_dict() for row in rows],
-                   'search': [row.as_dict() for row in searches]}
-        write_text_atomically(args.json, json.dumps(payload, indent=2) + '\n')
     return 0
 
 
@@ -323,12 +323,12 @@ def main_live(args: argparse.Namespace) -> int:
     except (ValueError, RuntimeError) as err:
         print(f'laser_odom_bench: error: {err}', file=sys.stderr)
         return 2
-    print(machine_line(live=True))
-    print(format_live(rows, args.beams, args.rate, args.duration))
     if args.json is not None:
         write_text_atomically(args.json, json.dumps(
             {**provenance(), 'live': [vars(row) for row in rows]},
             indent=2) + '\n')
+    print(machine_line(live=True))
+    print(format_live(rows, args.beams, args.rate, args.duration))
     return 0
 
 

@@ -251,17 +251,19 @@ def tune(args: argparse.Namespace) -> int:
         existing = run_studies(job, storage, args.trials, args.jobs)
         summaries = summarize(job, storage, existing)
         start = 'default' if args.params_file is None else 'start'
-        print('\n'.join(table_lines(summaries, objective, start)))
         winner = min(summaries, key=lambda s: s.best if math.isfinite(s.best) else math.inf)
         header = [f'{PROG}: best of {", ".join(matchers)} on {", ".join(args.bags)}',
                   f'score {objective.replace("_", "-")}, lower is better; study '
                   f'{args.study_name}-{winner.matcher}, {winner.total} trials']
+        # The files first: a reader leaving the printed table loses nothing.
         write_output(args.output, tuned_yaml(winner.best_values or {'matcher': winner.matcher},
                                              winner, header))
+        if args.plot is not None:
+            plot(args.plot, job, storage, bags, summaries)
+        print('\n'.join(table_lines(summaries, objective, start)))
         print(f'best: {winner.matcher} {winner.best:.5g} ({start} {winner.default:.5g}); '
               f'wrote {args.output}')
         if args.plot is not None:
-            plot(args.plot, job, storage, bags, summaries)
             print(f'wrote {args.plot}')
     finally:
         if temporary is not None:
