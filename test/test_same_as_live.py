@@ -167,6 +167,17 @@ def test_help_prints_usage_and_exits_without_starting():
     assert 'laser odometry: matcher' not in text + result.stderr
 
 
+def test_help_into_a_reader_that_leaves_exits_quietly():
+    """``laser_odom_node --help | head -1``: the usage was asked for, so still exit 0."""
+    process = subprocess.Popen([sys.executable, '-m', 'laser_odom.ros.node', '--help'],
+                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
+    process.stdout.close()  # the reader is gone before the first line
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 0, stderr
+    assert 'Traceback' not in stderr and 'BrokenPipeError' not in stderr, stderr
+
+
 @pytest.fixture(scope='module')
 def node(peer):
     """Start a node with the debug cloud on; yield the process and an odometry client."""

@@ -47,6 +47,7 @@ from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
 from laser_odom.core.warmup import warm_up
 from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
+from laser_odom.io.text_output import reader_may_leave
 from laser_odom.ros import extrinsic
 from laser_odom.ros.conversions import (
     initial_pose_from_msg, matched_cloud_msg, published_messages, scan_from_msg, stamp_to_ns)
@@ -346,10 +347,8 @@ def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C; return the exit code (2 for bad parameters)."""
     argv = sys.argv if args is None else args
     if wants_help(argv):
-        try:
+        with reader_may_leave(status=0):  # `--help | head`: the reader left; say no more
             print(usage(), flush=True)
-        except BrokenPipeError:  # `--help | head`: the reader left; say nothing more
-            sys.stdout = None
         return 0
     try:
         # The files' layout is judged by the same reader the replay and tools use,

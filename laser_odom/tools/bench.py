@@ -51,10 +51,10 @@ from laser_odom.io.bag_dataset import (
     BAG_GROUND_TRUTH, bag_loaders, BAG_ODOMETRY, NO_REFERENCE)
 from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
-from laser_odom.io.text_output import write_text_atomically
+from laser_odom.io.text_output import reader_may_leave, write_text_atomically
 from laser_odom.tools.bench_table import (
     format_nees_table, format_search_table, format_table, machine_line, provenance)
-from laser_odom.tools.quiet import reader_may_leave, warnings_silenced
+from laser_odom.tools.quiet import warnings_silenced
 
 LOGGER = logging.getLogger('laser_odom.tools.bench')
 """Where the benchmark's own warnings go (stderr; ``--quiet`` silences them)."""

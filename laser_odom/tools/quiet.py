@@ -4,14 +4,8 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 import logging
-import os
-import sys
 from typing import Iterator
 import warnings
-
-READER_LEFT_STATUS = 1
-"""Exit status when the reader of the output left early (``tool | head``): not all of the
-output was delivered, as with Python's own handling of a broken pipe."""
 
 
 @contextmanager
@@ -38,19 +32,3 @@ def warnings_silenced(quiet: bool) -> Iterator[None]:
             yield
     finally:
         logging.disable(previous)
-
-
-@contextmanager
-def reader_may_leave() -> Iterator[None]:
-    """Stop quietly when the reader of standard output leaves (``tool | head -1``).
-
-    A closed pipe is not the tool's failure and gets no traceback: standard output is
-    pointed at the null device, so that the interpreter's final flush does not fail
-    again, and the tool exits with :data:`READER_LEFT_STATUS`.
-    """
-    try:
-        yield
-    except BrokenPipeError:
-        null = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(null, sys.stdout.fileno())
-        raise SystemExit(READER_LEFT_STATUS)

@@ -39,10 +39,11 @@ from laser_odom.io.bag_reader import (
     BagError, BagReader, BagTruncatedError, LASER_SCAN)
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
+from laser_odom.io.text_output import reader_may_leave
 from laser_odom.tools.arguments import number_in
 from laser_odom.tools.plots import (
     check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
-from laser_odom.tools.quiet import reader_may_leave, warnings_silenced
+from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import (
     DEFAULT_MIN_COVERAGE, print_summary, read_reference, ReplayError, ReplayRecord,
     write_outputs)

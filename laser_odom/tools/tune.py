@@ -36,10 +36,10 @@ from laser_odom.core.tuning.study import (
 from laser_odom.io.bag_dataset import BAG_GROUND_TRUTH, check_overlap, read_bag
 from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
-from laser_odom.io.text_output import write_text_atomically
+from laser_odom.io.text_output import reader_may_leave, write_text_atomically
 from laser_odom.ros.default_params import yaml_value
 from laser_odom.tools.arguments import number_in
-from laser_odom.tools.quiet import reader_may_leave, warnings_silenced
+from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import DEFAULT_MIN_COVERAGE
 
 PROG = 'laser_odom_tune'
