@@ -104,6 +104,7 @@ class OdometryPipeline:
         self.keyframe_pose = self.pose.copy()
         self.uncertainty = PoseUncertainty.at(self.pose_covariance)
         self.keyframe_uncertainty = self.uncertainty
+        self.scans_after_keyframe = 0
         self.last_stamp_ns: int | None = None
         self.untrusted = 'reset'
         self.motion.reset()
@@ -251,8 +252,10 @@ class OdometryPipeline:
         # rejected one (the prediction) is ignorance, which stays: those compound white.
         model = (StepErrorModel.of(self.matcher.config) if verdict.status == 'matched'
                  else StepErrorModel())
+        self.scans_after_keyframe += 1
         self.uncertainty = self.keyframe_uncertainty.propagate(
-            self.keyframe_pose, verdict.pose, verdict.covariance, model)
+            self.keyframe_pose, verdict.pose, verdict.covariance, model,
+            self.scans_after_keyframe)
         step = se2.relative(self.pose, new_pose)
         step_covariance = verdict.covariance
         self.pose, self.pose_covariance = new_pose, self.uncertainty.pose_covariance
@@ -367,3 +370,4 @@ class OdometryPipeline:
         self.keyframe_deskewed = motion_known and not sweeps_after_stamp
         self.keyframe_pose = self.pose.copy()
         self.keyframe_uncertainty = self.uncertainty
+        self.scans_after_keyframe = 0

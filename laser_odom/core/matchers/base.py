@@ -46,6 +46,11 @@ class MatcherConfig:
     covariance_bias_correlation: float = param(
         0.0, 'Correlation of that bias between consecutive steps (0.98: some 50 steps).',
         0.0, 0.999)
+    covariance_bias_falloff: float = param(
+        0.0, 'How the bias falls off when a match spans several scans (keyframes): the '
+        'bias share of a match n scans after its keyframe is covariance_bias / n^falloff '
+        '(beam-sampling bias of point pairs fades as the scans move apart: about 1.3; a '
+        'bias of the surface model does not: 0).', 0.0, 3.0)
 
 
 @dataclass

@@ -3,8 +3,8 @@
 Besl & McKay, "A method for registration of 3-D shapes", PAMI 1992, with each
 iteration's rigid fit solved in closed form by Arun, Huang & Blostein, "Least-squares
 fitting of two 3-D point sets", PAMI 1987 (the compiled iterations are in
-:mod:`laser_odom.core.matchers.icp_solver`), coarse to fine: beam samples, then the
-reference densified along its surface.
+:mod:`laser_odom.core.matchers.icp_solver`) against the reference densified along its
+surface; from a far guess, coarse to fine (beam samples first).
 """
 
 from __future__ import annotations
@@ -46,7 +46,12 @@ class IcpConfig(MatcherConfig):
         40, 'Iteration cap of each phase (beam samples, then densified surface).', 1, 500)
     convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
     convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
-    covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 8.0)
+    covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 2.5)
+    covariance_shared_scan: float = retune(MatcherConfig, 'covariance_shared_scan', 0.5)
+    covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.2)
+    covariance_bias_correlation: float = retune(MatcherConfig, 'covariance_bias_correlation',
+                                                0.98)
+    covariance_bias_falloff: float = retune(MatcherConfig, 'covariance_bias_falloff', 1.3)
     max_correspondence_distance: float = retune(MatcherConfig, 'max_correspondence_distance', 0.3)
     min_keep_fraction: float = param(
         0.8, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0)
@@ -75,22 +80,20 @@ class IcpMatcher(ScanMatcher):
         estimate = np.array(initial_guess, dtype=float)
         if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
             return MatchResult.failure(estimate, reason='too few points')
-        # Coarse to fine: the beam samples move the estimate quickly from a far guess;
-        # the densified surface then removes the sampling bias near the optimum.
-        # ``max_iterations`` caps each of the two phases.
-        iterations = 0
-        converged = False
-        phases = ((lambda: (reference.points, reference.bearing_index), COARSE_TOLERANCE),
-                  (lambda: self._dense_reference(reference), 1.0))
-        for phase, tolerance in phases:
-            target, tree = phase()
-            estimate, used, converged = self._iterate(target, tree, current, estimate,
-                                                      tolerance)
-            iterations += used
-            if estimate is None:
-                return MatchResult.failure(initial_guess, iterations, reason='too few pairs')
-            if not converged:
-                break  # the coarse phase did not settle: refining would not help
+        # Dense first: near a good guess the densified surface alone is unbiased. The
+        # beam samples have an optimum of their own where the beams fall on the spots
+        # they hit before - along a corridor, no motion at all - so from a good guess a
+        # coarse phase drags the estimate back by up to a whole step. Only a guess the
+        # dense phase cannot settle from (a far one) goes coarse to fine, from the guess.
+        dense, dense_index = self._dense_reference(reference)
+        estimate, iterations, converged = self._iterate(dense, dense_index, current,
+                                                        initial_guess, 1.0)
+        tree = dense_index
+        if not converged:
+            estimate, iterations, converged, tree = self._coarse_to_fine(
+                reference, current, initial_guess, iterations)
+        if estimate is None:
+            return MatchResult.failure(initial_guess, iterations, reason='too few pairs')
         moved = se2.transform_points(estimate, current.points)
         pairs = nearest_neighbours(tree, moved, cfg.max_correspondence_distance)
         if len(pairs) < cfg.min_correspondences:
@@ -108,6 +111,29 @@ class IcpMatcher(ScanMatcher):
         """Densify ``scan`` and estimate the normals behind the information (once per keyframe)."""
         self._dense_reference(scan)
         estimate_normals(scan, INFORMATION_NEIGHBOURS, INFORMATION_RADIUS)
+
+    def _coarse_to_fine(self, reference: ScanPoints, current: ScanPoints,
+                        initial_guess: se2.Pose, iterations: int
+                        ) -> tuple[se2.Pose | None, int, bool, BearingIndex]:
+        """Beam samples from a far guess, then the densified surface near the optimum.
+
+        The beam samples move the estimate quickly; the dense phase removes their
+        sampling bias. ``max_iterations`` caps each phase; ``iterations`` are those
+        already spent. Returns the estimate (None if pairs ran out), the iterations,
+        whether it converged and the index of the last phase's target.
+        """
+        converged = False
+        estimate = np.array(initial_guess, dtype=float)
+        phases = ((lambda: (reference.points, reference.bearing_index), COARSE_TOLERANCE),
+                  (lambda: self._dense_reference(reference), 1.0))
+        for phase, tolerance in phases:
+            target, tree = phase()
+            estimate, used, converged = self._iterate(target, tree, current, estimate,
+                                                      tolerance)
+            iterations += used
+            if estimate is None or not converged:
+                break  # pairs ran out, or the coarse phase did not settle
+        return estimate, iterations, converged, tree
 
     def _dense_reference(self, reference: ScanPoints) -> tuple[np.ndarray, BearingIndex]:
         """Return the densified reference and its index, built once per reference scan."""
