@@ -50,7 +50,7 @@ MODULES = {
             'white_errors_compound_as_smith_self_and_cheeseman',
             'shared_scan_noise_telescopes', 'a_persistent_bias_adds_up_linearly',
             'one_step_keeps_the_matchers_covariance_whatever_the_shares',
-            'the_bias_of_a_match_across_scans_falls_off_with_their_number')]),
+            'what_is_not_the_scans_own_noise_falls_off_with_the_baseline')]),
     'robust': (f'{M}/robust.py', ['test/test_robust.py']),
     'icp_solver': (f'{M}/icp_solver.py', ['test/test_icp.py']),
     'plicp_solver': (f'{M}/plicp_solver.py', ['test/test_plicp.py']),

@@ -40,7 +40,7 @@ def synthetic_run(rng: np.random.Generator, model: StepErrorModel, steps: int = 
     ``e_k = (n_k - n_{k-1}) + w_k + b_k`` in the step's frame (pose_uncertainty); the
     run states ``stated * S`` for each step and the pose covariance compounded from it.
     """
-    a, c, phi = model.shared_scan, model.bias(), model.bias_correlation
+    a, c, phi = model.shared_scan, model.shares()[1], model.bias_correlation
     zero = np.zeros(3)
     shared = rng.multivariate_normal(zero, a * covariance / 2, size=steps + 1)
     white = rng.multivariate_normal(zero, (1 - a - c) * covariance, size=steps)

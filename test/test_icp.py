@@ -7,12 +7,17 @@ import pytest
 from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import create_matcher
 from laser_odom.core.matchers.icp_solver import accelerated_extra, align_pairs, iterate
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.metrics import evaluate
 from laser_odom.core.nearest import BearingIndex
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import densify, scan_to_points, ScanPoints
-from laser_odom.core.simulation import get_world, LaserModel, render_scan
+from laser_odom.core.simulation import get_world, LaserModel, render_scan, simulate
 
 MOTION = se2.pose(0.3, 0.0, math.radians(10.0))
 # The pipeline seeds every match with the constant-velocity prediction; a typical
@@ -260,3 +265,20 @@ def test_points_beyond_the_distance_gate_do_not_pull_the_estimate():
         reference, cluttered, motion)
     assert np.linalg.norm(gated.pose[:2] - motion[:2]) < 0.005
     assert np.linalg.norm(ungated.pose[:2] - motion[:2]) > 0.05  # what the gate prevents
+
+
+def test_follows_the_long_office_corridor():
+    """100 s in the office, down its long corridor (about 60-80 s), 1 cm range noise.
+
+    Along the corridor the scene barely constrains the motion. Starting each match on
+    the beam samples pulled the estimate towards the motion that lines the samples up
+    again - none - and once a step had collapsed, the constant-velocity guess carried
+    it on: ATE 1.4-2.2 m over these runs. On the densified surface the match keeps the
+    guess where the scene is silent.
+    """
+    run = simulate('office', duration=100.0, laser=LaserModel(noise_sigma=0.01), seed=5)
+    result = run_pipeline(OdometryPipeline(PipelineConfig(matcher='icp'),
+                                           events=EventLog(lambda message: None)), run.scans)
+    errors = evaluate(result.trajectory, run.reference)
+    assert errors.ate_rms < 0.2, errors.ate_rms
+    assert result.statuses.count('rejected') == 0

@@ -37,26 +37,26 @@ wander more than they do; a small bias that persists (``phi`` 0.999: the same si
 a thousand matches, as a systematic under- or overestimate of the motion would) fits
 both.
 
-**Bias and baseline.** Where the bias comes from decides whether a match across
-several scans keeps it. Point-to-point pairs (``icp``) are biased by the beam sampling:
-two scans a few centimetres apart sample the walls at nearly the same spots, so the
-pairs favour the motion that lines the samples up again. The farther apart the scans,
-the less their samples line up: matched noise-free from the true pose in the office
-world, pairs 1, 2, 4 and 7 scans apart err by 1.56, 0.67, 0.23 and 0.11 mm^2 along
-the corridor and 45, 11, 4.1 and 3.9 mdeg^2 in heading, a variance falling as about
-``n^-1.3``. Its keyframe transitions (7 scans apart at 0.3 m) carry no measurable mean
-error where its scan-to-scan steps err by 0.3 mm each, the same way. So the bias share
-of a match ``n`` scans after its keyframe is ``c_n = c / n^gamma``
-(``covariance_bias_falloff`` ``gamma``) and the white part takes the rest, which keeps
-a single match's covariance ``S_k``. The bias of a point-to-line or surface metric
-(``plicp``, ``nicp``, ``imls``) comes from the surface model (normals, the implicit
-surface) fitted to noisy points, whatever the baseline: ``gamma`` 0. Scan to scan,
-``n`` is 1 and ``gamma`` changes nothing.
-For ``plicp`` no setting fits keyframes: its transitions show no bias and the
-shared-scan telescoping (lag-1 correlation -0.2 to -0.5) the model expects, but in the
-office they err by half the variance their covariance states, while in the cluttered
-world they are honest; the error is in the match covariance, not in how it compounds
-(see ``test/test_pose_covariance.py``).
+**Baseline.** With keyframes a match spans ``n`` scans, and how its error splits
+depends on what the matcher pairs. ``icp`` and ``plicp`` pair each point with the other
+scan's samples; two scans a few centimetres apart sample the walls at nearly the same
+spots, so the pairing errs alike from one step to the next (point to point, matched
+noise-free from the true pose in the office world, pairs 1, 2, 4 and 7 scans apart err
+by 1.56, 0.67, 0.23 and 0.11 mm^2 along the corridor and 45, 11, 4.1 and 3.9 mdeg^2 in
+heading). Across a keyframe's 7 scans (0.3 m) that pairing error has faded: the
+transitions of both are honest one by one (NEES 2.2-3.0 for ``plicp``), carry no
+measurable mean error where scan-to-scan steps of ``icp`` err by 0.3 mm each the same
+way, and telescope (lag-1 correlation -0.2 to -0.5), so that after 1000 scans the
+heading of ``plicp`` errs by 0.03-0.16 deg where compounding them with the
+scan-to-scan shares predicts 0.42-0.47 deg. So the part of a match's covariance that is
+not the scans' own noise, white and bias, shrinks with the baseline to ``r_n = (1 - a)
+/ n^gamma`` (``covariance_baseline_falloff`` ``gamma``); the scans' own noise takes the
+rest, ``a_n = 1 - r_n``, and the bias its share of it, ``c_n = covariance_bias r_n``,
+which keeps a single match's covariance ``S_k``. ``gamma`` 1 fits ``icp`` and ``plicp``
+with keyframes in both simulated worlds. ``nicp`` and ``imls`` fit a surface model
+(normals and curvature, an implicit surface) to the noisy points, and its error does
+not fade with the baseline: ``gamma`` 0. Scan to scan ``n`` is 1 and ``gamma`` changes
+nothing.
 The pipeline applies the model to good matches only: the covariance of a degenerate or
 rejected step is ignorance, not scan noise, and compounds as white.
 """
@@ -79,24 +79,30 @@ class StepErrorModel:
     """How a matcher's step error splits: shared-scan noise, white part, correlated bias.
 
     ``shared_scan`` and ``bias_share`` are in [0, 1] (the declared ranges); the bias
-    takes ``bias_share`` of what the shared part leaves, ``bias_correlation`` < 1, and
-    falls off as ``n^-bias_falloff`` in a match ``n`` scans after its keyframe.
+    takes ``bias_share`` of what the shared part leaves, ``bias_correlation`` < 1; in a
+    match ``n`` scans after its keyframe what the shared part leaves falls off as
+    ``n^-baseline_falloff`` (module docstring, "Baseline").
     """
 
     shared_scan: float = 0.0
     bias_share: float = 0.0
     bias_correlation: float = 0.0
-    bias_falloff: float = 0.0
+    baseline_falloff: float = 0.0
 
     @classmethod
     def of(cls, config: object) -> StepErrorModel:
         """Return the model a matcher configuration declares."""
         return cls(config.covariance_shared_scan, config.covariance_bias,
-                   config.covariance_bias_correlation, config.covariance_bias_falloff)
+                   config.covariance_bias_correlation, config.covariance_baseline_falloff)
 
-    def bias(self, scans_apart: int = 1) -> float:
-        """Bias share of a match ``n`` scans apart: ``bias_share (1 - shared_scan) / n^falloff``."""
-        return self.bias_share * (1.0 - self.shared_scan) / scans_apart ** self.bias_falloff
+    def shares(self, scans_apart: int = 1) -> tuple[float, float]:
+        """Return the shared-scan and bias shares of a match spanning ``scans_apart`` scans.
+
+        What the shared part leaves, ``r = (1 - shared_scan) / n^baseline_falloff``, is
+        split into bias (``bias_share * r``) and white; the shared part is ``1 - r``.
+        """
+        rest = (1.0 - self.shared_scan) / scans_apart ** self.baseline_falloff
+        return 1.0 - rest, self.bias_share * rest
 
 
 @dataclass(frozen=True)
@@ -133,9 +139,10 @@ class PoseUncertainty:
         ``scans_apart`` is how many scans the match spans (1 scan to scan).
         """
         ja, jb = se2.compose_jacobians(anchor, step)
+        shared, bias = model.shares(scans_apart)
         joint = _propagate(self.joint, self.scan_known, ja, jb,
                            np.ascontiguousarray(step_covariance, dtype=float),
-                           model.shared_scan, model.bias(scans_apart), model.bias_correlation)
+                           shared, bias, model.bias_correlation)
         return PoseUncertainty(joint, scan_known=True)
 
 

@@ -32,7 +32,8 @@ TIMING_DATASETS = ('fr079', 'sim-office-1081')
 """Datasets whose median time per scan the README quotes (360 and 1081 beams)."""
 
 README_MARKERS = {'table': ('<!-- figures:table:begin -->', '<!-- figures:table:end -->'),
-                  'speed': ('<!-- figures:speed:begin -->', '<!-- figures:speed:end -->')}
+                  'speed': ('<!-- figures:speed:begin -->', '<!-- figures:speed:end -->'),
+                  'nees': ('<!-- figures:nees:begin -->', '<!-- figures:nees:end -->')}
 CONFIG_MARKERS = ('# figures:begin', '# figures:end')
 
 
@@ -95,6 +96,21 @@ def speed_sentence(payload: Mapping[str, Any]) -> str:
             f'1081 beams (simulated office) {", ".join(at_1081[:-1])} and {at_1081[-1]} ms.\n')
 
 
+def nees_sentence(payload: Mapping[str, Any]) -> str:
+    """Return the README's real-log NEES over 100 steps and whole logs, every matcher."""
+    rows = [figure(payload, name, m) for name, _ in REAL_LOGS for m in MATCHERS]
+
+    def spread(key: str) -> str:
+        values = [row[key] for row in rows]
+        return f'{min(values):.0f}-{max(values):.0f}'
+
+    noise = rows[0]
+    return (f'On the real logs (`laser_odom_bench --nees`, {payload.get("date", "undated")}, '
+            f'{100 * noise["reference_noise_m"]:.0f} cm / {noise["reference_noise_deg"]:.0f} '
+            f'deg of reference noise allowed for) the NEES is {spread("nees_100")} over 100 '
+            f'steps and {spread("nees_integrated")} over a whole log.\n')
+
+
 def config_block(payload: Mapping[str, Any], matcher: str) -> str:
     """Comment lines for ``config/<matcher>.yaml``: the matcher's figures on each log."""
     lines = ['# Measured with these values by laser_odom_bench (constant-velocity prior, '
@@ -123,7 +139,8 @@ def replace_between(text: str, markers: tuple[str, str], body: str, where: str) 
 def rendered_readme(text: str, payload: Mapping[str, Any]) -> str:
     """Return the README text with its figures rendered from ``payload``."""
     text = replace_between(text, README_MARKERS['table'], readme_table(payload), 'README')
-    return replace_between(text, README_MARKERS['speed'], speed_sentence(payload), 'README')
+    text = replace_between(text, README_MARKERS['speed'], speed_sentence(payload), 'README')
+    return replace_between(text, README_MARKERS['nees'], nees_sentence(payload), 'README')
 
 
 def rendered_config(text: str, payload: Mapping[str, Any], matcher: str) -> str:

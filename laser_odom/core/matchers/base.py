@@ -46,11 +46,12 @@ class MatcherConfig:
     covariance_bias_correlation: float = param(
         0.0, 'Correlation of that bias between consecutive steps (0.98: some 50 steps).',
         0.0, 0.999)
-    covariance_bias_falloff: float = param(
-        0.0, 'How the bias falls off when a match spans several scans (keyframes): the '
-        'bias share of a match n scans after its keyframe is covariance_bias / n^falloff '
-        '(beam-sampling bias of point pairs fades as the scans move apart: about 1.3; a '
-        'bias of the surface model does not: 0).', 0.0, 3.0)
+    covariance_baseline_falloff: float = param(
+        0.0, 'A match n scans after its keyframe: the part of its covariance that is not '
+        'noise of the two scans (white and bias) shrinks to (1 - covariance_shared_scan) / '
+        'n^falloff and the noise of the scans takes the rest (icp, plicp: 1, their pairing '
+        'errors fade as the scans move apart; nicp, imls: 0, a surface model errs alike).',
+        0.0, 3.0)
 
 
 @dataclass

@@ -51,7 +51,8 @@ class IcpConfig(MatcherConfig):
     covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.2)
     covariance_bias_correlation: float = retune(MatcherConfig, 'covariance_bias_correlation',
                                                 0.98)
-    covariance_bias_falloff: float = retune(MatcherConfig, 'covariance_bias_falloff', 1.3)
+    covariance_baseline_falloff: float = retune(MatcherConfig, 'covariance_baseline_falloff',
+                                                1.0)
     max_correspondence_distance: float = retune(MatcherConfig, 'max_correspondence_distance', 0.3)
     min_keep_fraction: float = param(
         0.8, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0)

@@ -54,6 +54,8 @@ class PlicpConfig(MatcherConfig):
     covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.125)
     covariance_bias_correlation: float = retune(MatcherConfig, 'covariance_bias_correlation',
                                                 0.98)
+    covariance_baseline_falloff: float = retune(MatcherConfig, 'covariance_baseline_falloff',
+                                                1.0)
     max_beam_gap: int = param(
         3, 'Reference points whose beam indices differ by more than this do not form '
         'a segment.', 1, 1000)
