@@ -111,6 +111,89 @@ def test_segments_stop_at_range_discontinuities_and_beam_gaps():
     assert reference_segments(scan, 3, 0.5) is segments  # cached per scan
 
 
+def _segment_table_by_definition(points, beams, max_beam_gap, max_length):
+    """The table of ReferenceSegments, row by row from its docstring (plain Python)."""
+    n = len(points)
+    ok = [beams[j + 1] - beams[j] <= max_beam_gap
+          and 0.0 < np.hypot(*(points[j + 1] - points[j])) <= max_length for j in range(n - 1)]
+
+    def line(j):  # segment (j, j + 1): direction turned by +90 deg, offset n . r[j]
+        d = (points[j + 1] - points[j]) / np.hypot(*(points[j + 1] - points[j]))
+        normal = np.array([-d[1], d[0]])
+        return [*normal, normal @ points[j]]
+    table = np.zeros((n + 1, 10))
+    for j in range(n):
+        prev_ok, next_ok = j > 0 and ok[j - 1], j < n - 1 and ok[j]
+        if prev_ok != next_ok:
+            table[j, 2] = 1.0 if next_ok else -1.0  # 0 < 1 or 0 < -1: the only side
+        else:
+            before, after = points[max(j - 1, 0)], points[min(j + 1, n - 1)]
+            table[j, :3] = [*(before - after), (before @ before - after @ after) / 2]
+        if prev_ok:
+            table[j, 3:6] = line(j - 1)
+            table[j, 5] = table[j, 3:5] @ points[j]
+        if next_ok:
+            table[j, 6:9] = line(j)
+        table[j, 9] = float(prev_ok or next_ok)
+    return table, ok
+
+
+def test_segment_table_matches_its_definition():
+    rng = np.random.default_rng(4)
+    beams = np.array([0, 1, 2, 3, 5, 6, 10, 11, 12, 13, 14, 20])
+    angles = np.radians(beams * 2.0 - 15.0)
+    ranges = np.array([2.0, 2.02, 2.05, 2.1, 2.1, 4.0, 4.1, 4.1, 4.15, 1.5, 1.52, 3.0])
+    points = np.c_[ranges * np.cos(angles), ranges * np.sin(angles)]
+    points[:, 1] += rng.normal(0.0, 0.01, len(points))
+    scan = ScanPoints(points, beams, ranges)
+    segments = reference_segments(scan, max_beam_gap=3, max_segment_length=0.5)
+    table, ok = _segment_table_by_definition(points, beams, 3, 0.5)
+    assert segments.segment_ok.tolist() == ok
+    assert ok.count(True) not in (0, len(ok))  # both kinds, ends of runs included
+    assert np.allclose(segments.table, table, rtol=1e-12, atol=1e-12)
+    # The bisector test: u . p < c exactly when p is closer to j + 1 than to j - 1.
+    j, p = 1, np.array([1.9, -0.3])
+    closer_to_next = np.hypot(*(p - points[j + 1])) < np.hypot(*(p - points[j - 1]))
+    assert (segments.table[j, :2] @ p < segments.table[j, 2]) == closer_to_next
+
+
+def _surface_normal_by_definition(points, arc, j, window):
+    """Normal of the total-least-squares line through the points within window / 2."""
+    near = np.abs(arc - arc[j]) <= 0.5 * window
+    if near.sum() < 3:
+        return np.zeros(2)
+    centred = points[near] - points[near].mean(axis=0)
+    _, _, axes = np.linalg.svd(centred)
+    return axes[1]  # the direction of least spread
+
+
+def test_surface_normals_are_the_fitted_lines_of_each_run():
+    rng = np.random.default_rng(9)
+    # A wall run (y = 1 + x / 4, 13 points), a break, a short run (2 points), a break,
+    # a run along x = 3 (6 points): windows never bridge a break.
+    wall = np.c_[np.linspace(-0.6, 0.6, 13), 1.0 + np.linspace(-0.6, 0.6, 13) / 4]
+    short = np.array([[2.0, 2.0], [2.05, 2.0]])
+    post = np.c_[np.full(6, 3.0), np.linspace(0.0, 0.5, 6)]
+    points = np.vstack([wall, short, post]) + rng.normal(0.0, 0.005, (21, 2))
+    beams = np.r_[np.arange(13), 30, 31, np.arange(50, 56)]
+    scan = ScanPoints(points, beams, np.hypot(points[:, 0], points[:, 1]))
+    window = 0.5
+    segments = reference_segments(scan, 3, 0.5, information_window=window)
+    ok = segments.segment_ok
+    assert ok.tolist() == [True] * 12 + [False, True, False] + [True] * 5
+    steps = np.hypot(*np.diff(points, axis=0).T)
+    arc = np.r_[0.0, np.cumsum(np.where(ok, steps, 1e9))]
+    for j in range(len(points)):
+        expected = _surface_normal_by_definition(points, arc, j, window)
+        got = segments.surface_normals[j]
+        if not expected.any():
+            assert not got.any(), j
+        else:  # a line's normal is defined up to its sign
+            assert abs(abs(got @ expected) - 1.0) < 1e-9, (j, got, expected)
+    assert not segments.surface_normals[13:15].any()  # two points make no line
+    assert np.allclose(np.abs(segments.surface_normals[16]), [1.0, 0.0], atol=0.05)
+
+
 def test_pairs_take_the_closer_beam_neighbour_and_its_line():
     points = np.array([[2.0, -0.2], [2.0, 0.0], [2.1, 0.1], [2.2, 0.2]])
     scan = ScanPoints(points, np.arange(4), np.hypot(points[:, 0], points[:, 1]))
