@@ -112,7 +112,7 @@ def test_segments_stop_at_range_discontinuities_and_beam_gaps():
 
 
 def _segment_table_by_definition(points, beams, max_beam_gap, max_length):
-    """The table of ReferenceSegments, row by row from its docstring (plain Python)."""
+    """Build the table of ReferenceSegments row by row from its docstring (plain Python)."""
     n = len(points)
     ok = [beams[j + 1] - beams[j] <= max_beam_gap
           and 0.0 < np.hypot(*(points[j + 1] - points[j])) <= max_length for j in range(n - 1)]
@@ -158,7 +158,7 @@ def test_segment_table_matches_its_definition():
 
 
 def _surface_normal_by_definition(points, arc, j, window):
-    """Normal of the total-least-squares line through the points within window / 2."""
+    """Return the normal of the total-least-squares line through the points within window / 2."""
     near = np.abs(arc - arc[j]) <= 0.5 * window
     if near.sum() < 3:
         return np.zeros(2)
