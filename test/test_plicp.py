@@ -12,7 +12,8 @@ from laser_odom.core import se2
 from laser_odom.core.config import pipeline_config_from_params
 from laser_odom.core.matchers import create_matcher
 from laser_odom.core.matchers.plicp import PlicpConfig, rotation_candidates
-from laser_odom.core.matchers.plicp_segments import pair_with_segments, reference_segments
+from laser_odom.core.matchers.plicp_segments import (
+    pair_and_trim, pair_with_segments, reference_segments)
 from laser_odom.core.matchers.plicp_solver import (
     iterate, solve_normal_equations, solve_point_to_line)
 from laser_odom.core.params import as_dict
@@ -192,6 +193,42 @@ def test_surface_normals_are_the_fitted_lines_of_each_run():
             assert abs(abs(got @ expected) - 1.0) < 1e-9, (j, got, expected)
     assert not segments.surface_normals[13:15].any()  # two points make no line
     assert np.allclose(np.abs(segments.surface_normals[16]), [1.0, 0.0], atol=0.05)
+
+
+def test_one_pairing_sums_the_normal_equations_of_its_kept_pairs():
+    rng = np.random.default_rng(12)
+    angles = np.radians(np.arange(-60.0, 60.0, 2.0))
+    ranges = 3.0 + 0.3 * np.sin(3.0 * angles)
+    reference = ScanPoints(np.c_[ranges * np.cos(angles), ranges * np.sin(angles)],
+                           np.arange(len(angles)), ranges)
+    segments = reference_segments(reference, 3, 0.5)
+    index = reference.bearing_index
+    current = reference.points + rng.normal(0.0, 0.02, reference.points.shape)
+    estimate = se2.pose(0.03, -0.02, 0.01)
+    kept, moved, line, segment, big_m, small_m, signature, paired = pair_and_trim(
+        segments.table, index.sorted_points, index.bearings, index.directions, index.order,
+        current, estimate, 0.5, 0.8, 0.5, 1.0, 3.0, np.full(len(current), -1, np.int64))
+    moved_all = se2.transform_points(estimate, current)
+    all_paired, _, all_lines = pair_with_segments(segments, index, moved_all, 0.5)
+    assert paired == len(all_paired) == len(current)
+    assert len(kept) == int(np.ceil(0.8 * paired))
+    assert np.allclose(moved, moved_all[kept])
+    residuals = np.einsum('nd,nd->n', line[:, :2], moved) - line[:, 2]
+    every = np.einsum('nd,nd->n', all_lines[:, :2], moved_all[all_paired]) - all_lines[:, 2]
+    assert np.abs(residuals).max() <= np.sort(np.abs(every))[len(kept) - 1] + 1e-12
+    # a = (n_x, n_y, n . p, n x p): M = sum a a^T (all of it, symmetric), m = sum (n . q) a
+    a = np.c_[line[:, :2], np.einsum('nd,nd->n', line[:, :2], moved),
+              line[:, 1] * moved[:, 0] - line[:, 0] * moved[:, 1]]
+    assert np.allclose(big_m, a.T @ a, rtol=1e-12, atol=1e-12)
+    assert np.allclose(small_m, a.T @ line[:, 2], rtol=1e-12, atol=1e-12)
+    again = pair_and_trim(
+        segments.table, index.sorted_points, index.bearings, index.directions, index.order,
+        current, estimate, 0.5, 0.8, 0.5, 1.0, 3.0, np.full(len(current), -1, np.int64))
+    assert again[6] == signature  # the same pairing, the same hash
+    other = pair_and_trim(
+        segments.table, index.sorted_points, index.bearings, index.directions, index.order,
+        current, estimate, 0.5, 0.7, 0.5, 1.0, 3.0, np.full(len(current), -1, np.int64))
+    assert other[6] != signature
 
 
 def test_pairs_take_the_closer_beam_neighbour_and_its_line():
