@@ -139,23 +139,39 @@ def _segment_table_by_definition(points, beams, max_beam_gap, max_length):
     return table, ok
 
 
-def test_segment_table_matches_its_definition():
-    rng = np.random.default_rng(4)
-    beams = np.array([0, 1, 2, 3, 5, 6, 10, 11, 12, 13, 14, 20])
-    angles = np.radians(beams * 2.0 - 15.0)
-    ranges = np.array([2.0, 2.02, 2.05, 2.1, 2.1, 4.0, 4.1, 4.1, 4.15, 1.5, 1.52, 3.0])
-    points = np.c_[ranges * np.cos(angles), ranges * np.sin(angles)]
-    points[:, 1] += rng.normal(0.0, 0.01, len(points))
-    scan = ScanPoints(points, beams, ranges)
+SEGMENT_CASES = [
+    # Every way a segment breaks, and its boundaries: a first point cut off by a range
+    # jump; a beam gap of exactly max_beam_gap (joined) and of one more (broken, though
+    # the points are close); a repeated point (length 0); a length of exactly
+    # max_segment_length (joined); a last segment that joins.
+    (np.array([0, 1, 2, 5, 9, 10, 11, 12, 13]),
+     np.array([[0.0, 2.0], [1.0, 2.0], [1.1, 2.0], [1.2, 2.02], [1.5, 2.0], [1.5, 2.0],
+               [1.5, 2.5], [1.6, 2.6], [1.7, 2.5]])),
+    # The other ends: a first segment that joins, a last point cut off.
+    (np.array([0, 1, 2, 3, 20]),
+     np.array([[2.0, -0.1], [2.0, 0.0], [2.05, 0.1], [2.0, 0.2], [5.0, 5.0]])),
+]
+
+
+@pytest.mark.parametrize('beams, points', SEGMENT_CASES)
+def test_segment_table_matches_its_definition(beams, points):
+    scan = ScanPoints(points, beams, np.hypot(points[:, 0], points[:, 1]))
     segments = reference_segments(scan, max_beam_gap=3, max_segment_length=0.5)
     table, ok = _segment_table_by_definition(points, beams, 3, 0.5)
     assert segments.segment_ok.tolist() == ok
-    assert ok.count(True) not in (0, len(ok))  # both kinds, ends of runs included
     assert np.allclose(segments.table, table, rtol=1e-12, atol=1e-12)
     # The bisector test: u . p < c exactly when p is closer to j + 1 than to j - 1.
-    j, p = 1, np.array([1.9, -0.3])
+    j, p = 2, np.array([1.16, 2.3])
     closer_to_next = np.hypot(*(p - points[j + 1])) < np.hypot(*(p - points[j - 1]))
     assert (segments.table[j, :2] @ p < segments.table[j, 2]) == closer_to_next
+
+
+def test_the_segment_cases_break_where_they_should():
+    (beams, points), (other_beams, other_points) = SEGMENT_CASES
+    assert _segment_table_by_definition(points, beams, 3, 0.5)[1] == [
+        False, True, True, False, False, True, True, True]
+    assert _segment_table_by_definition(other_points, other_beams, 3, 0.5)[1] == [
+        True, True, True, False]
 
 
 def _surface_normal_by_definition(points, arc, j, window):
