@@ -247,6 +247,34 @@ def test_one_pairing_sums_the_normal_equations_of_its_kept_pairs():
     assert other[6] != signature
 
 
+def test_each_point_takes_the_segment_of_the_closer_joined_neighbour():
+    """Censi 2008, Sec. III: j1 the nearest point, then the closer of j1 - 1 and j1 + 1."""
+    beams, points = SEGMENT_CASES[0]
+    scan = ScanPoints(points, beams, np.hypot(points[:, 0], points[:, 1]))
+    segments = reference_segments(scan, 3, 0.5)
+    ok = segments.segment_ok
+    queries = np.random.default_rng(3).uniform([0.9, 1.8], [1.8, 2.8], (400, 2))
+    paired, segment_id, line = pair_with_segments(segments, scan.bearing_index, queries, 0.4)
+    nearest = np.argmin(np.hypot(*(queries[:, None, :] - points[None]).transpose(2, 0, 1)),
+                        axis=1)
+    checked = 0
+    for query, j1, chosen in zip(queries[paired], nearest[paired], segment_id):
+        assert chosen >> 1 == j1
+        joined = [j for j, side_ok in ((j1 - 1, j1 > 0 and ok[j1 - 1]),
+                                       (j1 + 1, j1 < len(ok) and ok[j1])) if side_ok]
+        j2 = min(joined, key=lambda j: np.hypot(*(query - points[j])))
+        assert (chosen & 1) == (j2 == j1 + 1), (query, j1, joined)
+        checked += len(joined) == 2
+    assert checked > 50  # many points with a choice to make, not only forced sides
+
+
+def test_three_points_on_a_line_have_its_normal():
+    points = np.array([[1.0, 0.0], [1.0, 0.1], [1.0, 0.2]])
+    scan = ScanPoints(points, np.arange(3), np.hypot(points[:, 0], points[:, 1]))
+    normals = reference_segments(scan, 3, 0.5, information_window=1.0).surface_normals
+    assert np.allclose(np.abs(normals), [[1.0, 0.0]] * 3)
+
+
 def test_pairs_take_the_closer_beam_neighbour_and_its_line():
     points = np.array([[2.0, -0.2], [2.0, 0.0], [2.1, 0.1], [2.2, 0.2]])
     scan = ScanPoints(points, np.arange(4), np.hypot(points[:, 0], points[:, 1]))

@@ -178,10 +178,6 @@ class Pairs:
     nearest: np.ndarray
     offset: np.ndarray
 
-    def __len__(self) -> int:
-        """Return the number of pairs."""
-        return int(self.points.shape[0])
-
 
 def pair_with_segments(segments: ReferenceSegments, index: BearingIndex, moved: np.ndarray,
                        max_distance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
