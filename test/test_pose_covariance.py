@@ -164,3 +164,12 @@ def test_what_is_not_the_scans_own_noise_falls_off_with_the_baseline():
         assert np.allclose(straight_run(model, steps, S_PLANAR, n), expected,
                            rtol=1e-9, atol=1e-15), (gamma, n)
         assert np.allclose(straight_run(model, 1, S, n), S, rtol=1e-9, atol=1e-15)
+    # Scan to scan (the default) is one scan apart; the white model stays white.
+    model = StepErrorModel(a, c, phi, baseline_falloff=1.0)
+    assert model.shares() == model.shares(1) == (a, c * (1.0 - a))
+    state = PoseUncertainty.at().propagate(se2.pose(), STEP, S, model)
+    assert np.array_equal(PoseUncertainty.at().propagate(se2.pose(), STEP, S, model, 1).joint,
+                          state.joint)
+    assert np.array_equal(state.propagate(STEP, STEP, S, model).joint,
+                          state.propagate(STEP, STEP, S, model, 1).joint)
+    assert all(StepErrorModel().shares(n) == (0.0, 0.0) for n in (1, 2, 7))
