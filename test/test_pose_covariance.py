@@ -173,3 +173,19 @@ def test_what_is_not_the_scans_own_noise_falls_off_with_the_baseline():
     assert np.array_equal(state.propagate(STEP, STEP, S, model).joint,
                           state.propagate(STEP, STEP, S, model, 1).joint)
     assert all(StepErrorModel().shares(n) == (0.0, 0.0) for n in (1, 2, 7))
+
+
+def test_a_state_whose_scan_is_not_known_starts_its_noise_and_bias_from_their_prior():
+    # After a reset only the pose covariance is known: whatever a state holds for the
+    # scan's noise and the bias (and their correlation with the pose) is replaced by the
+    # priors, as if the state had been made by PoseUncertainty.at.
+    rng = np.random.default_rng(3)
+    root = rng.normal(size=(9, 9))
+    stale = root @ root.T
+    model = StepErrorModel(0.5, 0.4, 0.9)
+    pose_covariance = stale[0:3, 0:3]
+    fresh = PoseUncertainty.at(pose_covariance).propagate(STEP, STEP, S, model)
+    reset = PoseUncertainty(stale, scan_known=False).propagate(STEP, STEP, S, model)
+    np.testing.assert_allclose(reset.joint, fresh.joint, rtol=1e-12, atol=1e-15)
+    kept = PoseUncertainty(stale, scan_known=True).propagate(STEP, STEP, S, model)
+    assert not np.allclose(kept.joint, fresh.joint)
