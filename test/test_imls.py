@@ -125,6 +125,49 @@ def test_points_with_too_few_neighbours_have_no_surface_value():
     assert not implicit_surface(model, queries, H, RADIUS, 8, 4).defined.any()
 
 
+def _surface_by_definition(points, normals, usable, x, h, radius, k):
+    """Return IMLS-SLAM eq. 1 at ``x`` in plain numpy.
+
+    The sums run over the usable points among the ``k`` nearest reference points within
+    ``radius``; the weights are relative to the nearest one's (the same ratio, no
+    underflow far from the surface).
+    """
+    distance = np.hypot(*(points - x).T)
+    near = [j for j in np.argsort(distance)[:k] if distance[j] <= radius and usable[j]]
+    if not near:
+        return 0.0, np.zeros(2), 0, np.zeros(2), len(points)
+    weight = np.exp(-(distance[near] ** 2 - distance[near[0]] ** 2) / h ** 2)
+    tangent = np.einsum('nd,nd->n', x - points[near], normals[near])
+    mean = weight @ normals[near]
+    return (weight @ tangent / weight.sum(), normals[near[0]], len(near),
+            mean / np.linalg.norm(mean), near[0])
+
+
+@pytest.mark.parametrize('h, radius, k, spread, defined', [(0.1, 0.35, 5, 1.3, 171),
+                                                           (0.05, 3.0, 3, 3.0, 200)])
+def test_surface_follows_its_definition_at_random_queries(h, radius, k, spread, defined):
+    # Random points, normals and unusable points; one usable neighbour is enough
+    # (min_neighbours 1). The second case reaches 3 m with a 5 cm kernel: far queries
+    # keep a finite surface value.
+    rng = np.random.default_rng(7)
+    points = rng.uniform(-1.0, 1.0, (60, 2))
+    angle = rng.uniform(-math.pi, math.pi, 60)
+    normals = np.column_stack((np.cos(angle), np.sin(angle)))
+    usable = rng.random(60) > 0.2
+    queries = rng.uniform(-spread, spread, (200, 2))
+    sample = implicit_surface(model_from_arrays(points, normals, usable), queries, h, radius,
+                              k, 1)
+    for q, x in enumerate(queries):
+        value, normal, count, mean, nearest = _surface_by_definition(
+            points, normals, usable, x, h, radius, k)
+        assert sample.defined[q] == (count > 0) and sample.count[q] == count
+        assert sample.value[q] == pytest.approx(value, abs=1e-12)
+        np.testing.assert_allclose(sample.normal[q], normal, atol=1e-12)
+        np.testing.assert_allclose(sample.mean_normal[q], mean, atol=1e-12)
+        assert sample.nearest[q] == nearest
+    assert sample.defined.sum() == defined
+
+
 def test_projection_lands_on_the_surface():
     line = _line_model()
     rng = np.random.default_rng(3)
@@ -152,6 +195,35 @@ def test_projection_lands_on_the_surface():
 def test_planarity_is_one_on_a_line_and_zero_on_a_blob():
     np.testing.assert_allclose(planarity(np.array([0.0, 0.5, 0.2])),
                                [1.0, 0.0, 1.0 - math.sqrt(0.25)])
+
+
+def test_scores_and_ranking_follow_their_definition():
+    # IMLS-SLAM section III-B in 2D: a^2 |n_x|, a^2 |n_y|, +-a^2 (x cross n). Each list
+    # holds the usable points of positive score, best first (ties: lower index), then -1.
+    rng = np.random.default_rng(11)
+    points = rng.uniform(-5.0, 5.0, (40, 2))
+    angle = rng.uniform(-math.pi, math.pi, 40)
+    normals = np.column_stack((np.cos(angle), np.sin(angle)))
+    curvature = rng.uniform(0.0, 0.5, 40)
+    curvature[:4] = 0.5                                 # no planarity: no score
+    points[30:35], normals[30:35], curvature[30:35] = points[20], normals[20], curvature[20]
+    usable = rng.random(40) > 0.2
+    usable[30:35] = True
+    a2 = planarity(curvature) ** 2
+    cross = points[:, 0] * normals[:, 1] - points[:, 1] * normals[:, 0]
+    expected = np.column_stack((a2 * np.abs(normals[:, 0]), a2 * np.abs(normals[:, 1]),
+                                a2 * cross, -a2 * cross))
+    scores = observability_scores(points, normals, curvature)
+    np.testing.assert_allclose(scores, expected, rtol=1e-12, atol=1e-15)
+    model = model_from_arrays(points, normals, usable)
+    model.curvature = np.append(curvature, 0.5)
+    ranking = candidate_ranking(model)
+    assert ranking.shape == (4, 40)
+    for column in range(4):
+        listed = [i for i in sorted(range(40), key=lambda i: -expected[i, column])
+                  if usable[i] and expected[i, column] > 0.0]
+        assert ranking[column].tolist() == listed + [-1] * (40 - len(listed))
+        assert 5 < len(listed) < 36
 
 
 def test_selection_keeps_every_degree_of_freedom_in_a_corridor():

@@ -118,8 +118,9 @@ def implicit_surface(model: SurfaceModel, queries: np.ndarray, h: float, radius:
                      max_neighbours: int, min_neighbours: int) -> SurfaceSample:
     """Evaluate the IMLS function I(x) (IMLS-SLAM eq. 1) at every query point.
 
-    The sums run over the ``max_neighbours`` nearest usable reference points within
-    ``radius`` (one bounded k-nearest search, then the sums, in one compiled loop).
+    The sums run over the usable points among the ``max_neighbours`` nearest reference
+    points within ``radius`` (one bounded k-nearest search, then the sums, in one
+    compiled loop).
     Weights are taken relative to the nearest neighbour, ``exp(-(d^2 - d_0^2)/h^2)``:
     the ratio I(x) is unchanged, but far queries do not underflow to 0 / 0.
     """
