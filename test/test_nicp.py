@@ -14,11 +14,12 @@ from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
 from laser_odom.core.matchers.nicp import NicpConfig, NicpMatcher
 from laser_odom.core.matchers.nicp_model import (
-    associate, chi_squared, dense_information, normal_equations, pair_rules,
-    residuals_and_jacobians)
+    associate, chi_squared, dense_information, linearise, normal_equations, pair_rules,
+    residuals_and_jacobians, rule_table)
 from laser_odom.core.matchers.nicp_solver import damped_step, undoes
 from laser_odom.core.matchers.nicp_surface import (
     nicp_surface, normal_variance, point_information, rotation_seed)
+from laser_odom.core.matchers.robust import kernel_code, kernel_weights
 from laser_odom.core.metrics import evaluate
 from laser_odom.core.normals import estimate_normals, normals_from_neighbours
 from laser_odom.core.params import as_dict, ParameterError
@@ -253,12 +254,91 @@ def test_structured_normal_equations_equal_the_dense_ones():
     dense_h = np.einsum('n,nai,nab,nbj->ij', weights, jacobians, omega, jacobians)
     dense_g = np.einsum('n,nai,nab,nb->i', weights, jacobians, omega, error)
     rot = se2.rotation(pose[2])
+    np.testing.assert_allclose(error, np.hstack((points @ rot.T + pose[:2] - ref_points,
+                                                 normals @ rot.T - ref_normals)), atol=1e-12)
     hessian, gradient = normal_equations(points @ rot.T, normals @ rot.T, error[:, :2],
                                          error[:, 2:], info_point, info_normal, weights)
     np.testing.assert_allclose(hessian, dense_h, rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(gradient, dense_g, rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(chi_squared(error[:, :2], error[:, 2:], info_point, info_normal),
                                np.einsum('na,nab,nb->n', error, omega, error), rtol=1e-12)
+
+
+def test_rule_boundaries_are_inclusive():
+    # Each rule at its exact threshold passes, just beyond it fails: a distance of
+    # 0.25 m, a cosine of 0.6 (normals (1, 0) and (0.6, 0.8)) and a curvature ratio of
+    # 2 (|log 0.25 - log 1| = log 4 at max_curvature_ratio log 4).
+    ref_normals = np.array([[0.6, 0.8], [0.6, 0.8], [1.0, 0.0]])
+    ref_log_curvature = np.log([1.0, 1.0, 1.0])
+    rotated = np.array([[1.0, 0.0], [0.6, 0.8], [0.6, 0.8], [0.0, 1.0], [0.6, 0.8],
+                        [0.6, 0.8]])
+    log_curvature = np.log([1.0, 1.0, 1.0, 1.0, 0.25, 0.2499])
+    index = np.array([0, 1, 2, 2, 1, 1])
+    distance = np.array([0.25, 0.2501, 0.1, 0.1, 0.1, 0.1])
+    table = rule_table(ref_normals, ref_log_curvature, np.ones(3, bool), index, distance,
+                       rotated, log_curvature, np.ones(6, bool), 0.25, 0.6, math.log(4.0))
+    np.testing.assert_array_equal(table, [[True, True, True, True],
+                                          [True, False, True, True],
+                                          [True, True, True, True],     # cosine 0.6
+                                          [True, True, False, True],    # cosine 0
+                                          [True, True, True, True],
+                                          [True, True, True, False]])
+
+
+def _linearise(reference: ScanPoints, current: ScanPoints, estimate: se2.Pose,
+               count: int | None = None) -> tuple:
+    """Linearise NICP with the default settings, as the matcher does (first ``count``)."""
+    cfg = NicpConfig()
+    ref = nicp_surface(reference, cfg.surface_settings())
+    cur = nicp_surface(current, cfg.surface_settings())
+    index = reference.bearing_index
+    chosen = slice(0, count)
+    system = linearise(
+        index.sorted_points, index.bearings, index.directions, index.order, ref.points,
+        ref.normals, ref.log_curvature, ref.usable, ref.info_point, ref.info_normal,
+        cur.points_usable[chosen], cur.normals_usable[chosen],
+        cur.log_curvature_usable[chosen], np.asarray(estimate, dtype=float),
+        cfg.max_correspondence_distance, math.cos(cfg.max_normal_angle),
+        cfg.max_curvature_ratio, kernel_code(cfg.robust_kernel), cfg.robust_scale)
+    return system, ref, cur, cfg
+
+
+@pytest.mark.parametrize('count', [None, 3])
+def test_linearisation_reports_the_surface_distance_and_the_variance_factor(count):
+    # The RMS point-to-line distance of the pairs (along the reference normal), and the
+    # a-posteriori variance factor sum w e^T Omega e / max(sum w - 3, 1) with the robust
+    # weights of the Mahalanobis errors; three pairs give fewer than 1 degree of freedom.
+    reference = _scan(ROOM, START, LaserModel(beams=360, fov=2.0 * math.pi, max_range=20.0,
+                                              noise_sigma=0.01), seed=4)
+    current = _moved_copy(reference, se2.pose(0.1, -0.05, 0.02))
+    estimate = se2.pose(0.09, -0.04, 0.025)
+    system, ref, cur, cfg = _linearise(reference, current, estimate, count)
+    pairs, residual, variance_factor = system[0], system[3], system[4]
+    ref_index, weights = system[9], system[10]
+    moved = se2.transform_points(estimate, cur.points_usable[:count])
+    rotated_normals = cur.normals_usable[:count] @ se2.rotation(estimate[2]).T
+    picked, expected_index = associate(
+        reference.bearing_index, ref, moved, rotated_normals,
+        cur.log_curvature_usable[:count], np.ones(len(moved), bool),
+        cfg.max_correspondence_distance, math.cos(cfg.max_normal_angle),
+        cfg.max_curvature_ratio)
+    np.testing.assert_array_equal(ref_index, expected_index)
+    assert pairs == len(picked)
+    assert pairs == 3 if count else pairs > 200
+    point_error = moved[picked] - ref.points[ref_index]
+    normal_error = rotated_normals[picked] - ref.normals[ref_index]
+    along = np.einsum('nd,nd->n', point_error, ref.normals[ref_index])
+    assert residual == pytest.approx(math.sqrt(np.mean(along ** 2)), rel=1e-12)
+    assert residual > 1e-3
+    omega = dense_information(ref.info_point[ref_index], ref.info_normal[ref_index])
+    error = np.hstack((point_error, normal_error))
+    chi2 = np.einsum('na,nab,nb->n', error, omega, error)
+    np.testing.assert_allclose(
+        weights, kernel_weights(np.sqrt(chi2), kernel_code(cfg.robust_kernel),
+                                cfg.robust_scale), rtol=1e-12)
+    assert variance_factor == pytest.approx(
+        weights @ chi2 / max(weights.sum() - 3.0, 1.0), rel=1e-12)
+    assert (weights.sum() < 4.0) == bool(count)
 
 
 # --- recovery ------------------------------------------------------------------------
