@@ -284,7 +284,7 @@ def test_selection_evaluates_the_surface_only_where_the_lists_look(offset):
     full = implicit_surface(ref_model, se2.transform_points(pose, current.points), H, RADIUS,
                             4, 2)
     scores = observability_scores(current.points, model.normals[:-1], model.curvature[:-1])
-    for per_list in (1, 15, 60, 1000):
+    for per_list in (1, 15, 60, 300, 1000):
         chosen, sample = select_on_surface(ref_model, candidate_ranking(model),
                                            current.points, pose, per_list, H, RADIUS, 4, 2)
         expected = _selected_by_definition(scores, model.usable[:-1] & full.defined,
@@ -297,6 +297,34 @@ def test_selection_evaluates_the_surface_only_where_the_lists_look(offset):
         np.testing.assert_array_equal(sample.count, full.count[chosen])
         assert sample.defined.all()
     assert 0 < np.count_nonzero(~full.defined & model.usable[:-1]) or offset[0] == 0.0
+
+
+def test_selection_takes_only_ranked_points():
+    # 1501 points near a wall, all planar (an analytic model has zero curvature) but the
+    # last, which has no normal: no list ranks it, so no list takes it, however long.
+    # 300 per list stops the lists short of the 1500 candidates.
+    xs = np.linspace(-4.0, 4.0, 1501)
+    points = np.column_stack((xs, np.full(1501, 0.01)))
+    normals = np.tile([0.6, 0.8], (1501, 1))
+    usable = np.arange(1501) < 1500
+    ranking = candidate_ranking(model_from_arrays(points, normals, usable))
+    assert sorted(ranking[0][ranking[0] >= 0].tolist()) == list(range(1500))
+    scores = observability_scores(points, normals, np.zeros(1501))
+    for per_list, count in ((300, 1052), (5000, 1500)):
+        chosen, sample = select_on_surface(_line_model(), ranking, points, se2.pose(),
+                                           per_list, H, RADIUS, 4, 2)
+        np.testing.assert_array_equal(chosen, _selected_by_definition(scores, usable, per_list))
+        assert len(chosen) == count and sample.defined.all()
+
+
+def test_opposite_normals_that_cancel_leave_no_mean_normal():
+    # Two neighbours at the same distance with opposite normals: the weighted mean of
+    # the normals is zero and stays zero (not 0 / 0).
+    model = model_from_arrays(np.array([[-0.1, 0.0], [0.1, 0.0]]),
+                              np.array([[0.0, 1.0], [0.0, -1.0]]))
+    sample = implicit_surface(model, np.array([[0.0, 0.05]]), H, RADIUS, 4, 2)
+    assert sample.defined[0]
+    np.testing.assert_array_equal(sample.mean_normal, [[0.0, 0.0]])
 
 
 def test_gauss_newton_step_leaves_an_unconstrained_direction_alone():
