@@ -13,12 +13,15 @@ from laser_odom.core.config import pipeline_config_from_params, PipelineConfig
 from laser_odom.core.datasets import load_dataset
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
 from laser_odom.core.matchers.base import MatchResult
-from laser_odom.core.matchers.imls import ImlsConfig, ImlsMatcher
+from laser_odom.core.matchers.imls import (
+    ALIGNED_COSINE, COARSE_SHARE, ImlsConfig, ImlsMatcher, MAX_GAIN)
 from laser_odom.core.matchers.imls_solver import (
-    fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system)
+    advance, fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system,
+    step_cosine, surface_information)
 from laser_odom.core.matchers.imls_surface import (
     candidate_ranking, implicit_surface, model_from_arrays, observability_scores, planarity,
-    project_onto_surface, select_on_surface, surface_model)
+    project_onto_surface, select_on_surface, surface_model, SurfaceSample)
+from laser_odom.core.matchers.robust import inlier_mask, kernel_code, kernel_weights
 from laser_odom.core.metrics import evaluate
 from laser_odom.core.params import as_dict, ParameterError
 from laser_odom.core.pipeline import OdometryPipeline
@@ -351,6 +354,134 @@ def test_point_to_plane_jacobians_match_finite_differences():
         plus, _ = point_to_plane_system(pose + delta, points, normals, targets)
         minus, _ = point_to_plane_system(pose - delta, points, normals, targets)
         np.testing.assert_allclose(jacobians[:, k], (plus - minus) / (2 * eps), atol=1e-7)
+
+
+def test_weighted_step_solves_the_weighted_least_squares_and_drops_only_null_directions():
+    # -(J^T W J)^-1 J^T W r for a full-rank system with uneven weights; a direction
+    # 1e-10 times weaker than the strongest is left alone (the EIGEN_FLOOR of 1e-9),
+    # one 1e-8 times weaker is solved.
+    rng = np.random.default_rng(2)
+    jac, residuals = rng.normal(size=(30, 3)), rng.normal(size=30)
+    weights = rng.uniform(0.1, 3.0, 30)
+    root = np.sqrt(weights)[:, None]
+    expected = np.linalg.lstsq(root * jac, -root[:, 0] * residuals, rcond=None)[0]
+    np.testing.assert_allclose(gauss_newton_step(jac, residuals, weights), expected,
+                               rtol=1e-10, atol=1e-12)
+    # H = V diag(values) V^T with the weakest eigenvalue 1e-10 or 1e-8 of the strongest.
+    q = np.linalg.qr(rng.normal(size=(30, 3)))[0]
+    v = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    for weak, solved in ((1e-10, False), (1e-8, True)):
+        values = np.array([1e6, 1.0, 1e6 * weak])
+        jac = q @ np.diag(np.sqrt(values)) @ v.T
+        inverse = np.where([True, True, solved], 1.0 / values, 0.0)
+        expected = -v @ (inverse * (v.T @ (jac.T @ residuals)))
+        np.testing.assert_allclose(gauss_newton_step(jac, residuals, np.ones(30)), expected,
+                                   rtol=1e-6, atol=1e-9)
+
+
+def test_step_cosine_measures_rotation_as_the_arc_at_five_metres():
+    # A turn of 0.02 rad counts as 0.1 m; a zero previous step has no direction.
+    assert step_cosine(np.array([0.1, 0.0, 0.02]), np.array([0.0, 0.0, 0.02])) == \
+        pytest.approx(math.sqrt(0.5), rel=1e-12)
+    assert step_cosine(np.array([0.3, -0.4, 0.0]), np.array([-0.6, 0.8, 0.0])) == \
+        pytest.approx(-1.0, rel=1e-12)
+    assert step_cosine(np.array([0.1, 0.2, 0.0]), np.zeros(3)) == 0.0
+
+
+def test_surface_information_reports_the_rms_of_the_inlier_distances():
+    rng = np.random.default_rng(4)
+    values = rng.normal(0.0, 0.01, 50)
+    values[:3] = 1.0                                   # outliers, trimmed
+    moved = rng.uniform(-5.0, 5.0, (50, 2))
+    normals = np.tile([0.0, 1.0], (50, 1))
+    usable = np.ones(50, dtype=bool)
+    _, rms = surface_information(moved, np.zeros(2), values, normals, usable, 0.6, 3.0,
+                                 kernel_code('none'), 0.05)
+    assert rms == pytest.approx(math.sqrt(np.mean(values[3:] ** 2)), rel=1e-12)
+
+
+def _refine_by_definition(cfg: ImlsConfig, model, chosen, first, estimate, far, capture):
+    """Return the two stages of ``refine`` as its docstring states them (plain Python).
+
+    The approach: unit weights, the capture radius when far, a step aligned with the
+    last (cosine over ALIGNED_COSINE) doubled up to MAX_GAIN, until a step is under
+    ``coarse_tolerance`` or COARSE_SHARE of the iterations have run. Then the inliers
+    are fixed once and the robust kernel weighs the residuals; a step that reverses
+    (negative cosine) halves the gain. Planarity weights throughout.
+    """
+    approach, gated, converged, iterations = True, False, False, 0
+    previous, gain, sample = np.zeros(3), 1.0, first
+    while iterations < cfg.max_iterations:
+        iterations += 1
+        if iterations > 1 or not far:
+            radius = capture if approach and far else cfg.radius
+            sample = implicit_surface(model, se2.transform_points(estimate, chosen), cfg.h,
+                                      radius, cfg.max_neighbours, cfg.min_neighbours)
+        if not approach and not gated:
+            inlier = np.zeros(len(chosen), dtype=bool)
+            inlier[sample.defined] = inlier_mask(sample.value[sample.defined],
+                                                 cfg.min_keep_fraction, cfg.outlier_sigmas)
+            chosen = chosen[inlier]
+            sample = SurfaceSample(*(np.asarray(field)[inlier] for field in (
+                sample.value, sample.normal, sample.defined, sample.count,
+                sample.mean_normal, sample.nearest)))
+            gated, previous, gain = True, np.zeros(3), 1.0
+        ok = sample.defined
+        if np.count_nonzero(ok) < cfg.min_correspondences:
+            break
+        along = (sample.normal if cfg.projection_normal == 'nearest' else sample.mean_normal)[ok]
+        targets = project_onto_surface(se2.transform_points(estimate, chosen[ok]),
+                                       sample.value[ok], along)
+        residuals, jacobians = point_to_plane_system(estimate, chosen[ok], along, targets)
+        weights = (np.ones(len(residuals)) if approach else kernel_weights(
+            residuals, kernel_code(cfg.robust_kernel), cfg.robust_scale))
+        weights = weights * planarity(model.curvature[sample.nearest[ok]]) ** cfg.planarity_power
+        step = gauss_newton_step(jacobians, residuals, weights)
+        cosine = step_cosine(step, previous)
+        if approach:
+            gain = min(2.0 * gain, MAX_GAIN) if cosine > ALIGNED_COSINE else 1.0
+        elif cosine < 0.0:
+            gain *= 0.5
+        previous = step
+        estimate = advance(estimate, gain * step)
+        if approach:
+            small = (math.hypot(step[0], step[1]) < cfg.coarse_tolerance
+                     and abs(step[2]) < cfg.coarse_tolerance)
+            approach = not small and iterations < COARSE_SHARE * cfg.max_iterations
+        elif (math.hypot(gain * step[0], gain * step[1]) < cfg.convergence_translation
+              and abs(gain * step[2]) < cfg.convergence_rotation):
+            converged = True
+            break
+    return estimate, converged, iterations
+
+
+@pytest.mark.parametrize('settings, guess, chosen_count', [
+    ({}, se2.pose(0.05, -0.03, 0.02), 300),                          # near: fine radius
+    ({}, se2.pose(0.25, 0.2, -0.1), 300),                            # far: capture radius
+    ({'planarity_power': 0.5, 'projection_normal': 'mean'}, se2.pose(0.05, 0.0, 0.03), 300),
+    ({'planarity_power': 0.0, 'robust_kernel': 'cauchy', 'robust_scale': 0.01},
+     se2.pose(0.1, 0.1, 0.0), 300),
+    ({'max_iterations': 6, 'coarse_tolerance': 0.0}, se2.pose(0.3, 0.0, 0.1), 300),  # cap
+    ({'min_correspondences': 301}, se2.pose(0.05, 0.0, 0.0), 300),     # too few points
+])
+def test_refinement_follows_its_two_stages(settings, guess, chosen_count):
+    truth = se2.pose(0.2, 0.1, 0.05)
+    noisy = LaserModel(beams=720, fov=2.0 * math.pi, max_range=20.0, noise_sigma=0.01)
+    reference = _scan(ROOM, se2.pose(0.0, 0.0, 0.0), noisy, seed=3)
+    current = _scan(ROOM, truth, noisy, seed=4)
+    matcher = create_matcher('imls', settings)
+    cfg = matcher.config
+    model = matcher._model(reference)
+    chosen = current.points[::2][:chosen_count]
+    estimate = se2.compose(truth, guess)
+    capture = max(cfg.radius, cfg.max_correspondence_distance)
+    first = implicit_surface(model, se2.transform_points(estimate, chosen), cfg.h, capture,
+                             cfg.max_neighbours, cfg.min_neighbours)
+    far = bool(np.median(np.abs(first.value)) > 0.25 * cfg.radius)   # COARSE_FRACTION
+    compiled = matcher._refine(model, chosen, first, estimate, capture)
+    spec = _refine_by_definition(cfg, model, chosen, first, estimate, far, capture)
+    np.testing.assert_allclose(compiled[0], spec[0], rtol=0, atol=1e-12)
+    assert compiled[1:] == spec[1:]
 
 
 def test_inverted_information_is_the_covariance_of_the_inverse():
