@@ -52,7 +52,8 @@ docs: $(STAMP)
 	$(BIN)/python -m laser_odom.tools.figures
 
 # Mutation testing of one core module (cosmic-ray), e.g. make mutation MODULE=acceptance;
-# python .ci/mutation.py --help lists the modules. Minutes per module, in a temporary clone.
+# python .ci/mutation.py --help lists the modules. Minutes (pure Python) to an hour (a
+# matcher module, its kernels uncompiled) per module, in a temporary clone.
 MODULE ?= se2
 mutation: $(STAMP)
 	$(BIN)/python .ci/mutation.py $(MODULE)
