@@ -359,7 +359,7 @@ def test_point_to_plane_jacobians_match_finite_differences():
 def test_weighted_step_solves_the_weighted_least_squares_and_drops_only_null_directions():
     # -(J^T W J)^-1 J^T W r for a full-rank system with uneven weights; a direction
     # 1e-10 times weaker than the strongest is left alone (the EIGEN_FLOOR of 1e-9),
-    # one 1e-8 times weaker is solved.
+    # one 1e-8 times weaker is solved, however small the strongest.
     rng = np.random.default_rng(2)
     jac, residuals = rng.normal(size=(30, 3)), rng.normal(size=30)
     weights = rng.uniform(0.1, 3.0, 30)
@@ -370,8 +370,9 @@ def test_weighted_step_solves_the_weighted_least_squares_and_drops_only_null_dir
     # H = V diag(values) V^T with the weakest eigenvalue 1e-10 or 1e-8 of the strongest.
     q = np.linalg.qr(rng.normal(size=(30, 3)))[0]
     v = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-    for weak, solved in ((1e-10, False), (1e-8, True)):
-        values = np.array([1e6, 1.0, 1e6 * weak])
+    for strongest, weak, solved in ((1e6, 1e-10, False), (1e6, 1e-8, True),
+                                    (1e-3, 1e-8, True)):
+        values = strongest * np.array([1.0, 1e-6, weak])
         jac = q @ np.diag(np.sqrt(values)) @ v.T
         inverse = np.where([True, True, solved], 1.0 / values, 0.0)
         expected = -v @ (inverse * (v.T @ (jac.T @ residuals)))
@@ -386,6 +387,8 @@ def test_step_cosine_measures_rotation_as_the_arc_at_five_metres():
     assert step_cosine(np.array([0.3, -0.4, 0.0]), np.array([-0.6, 0.8, 0.0])) == \
         pytest.approx(-1.0, rel=1e-12)
     assert step_cosine(np.array([0.1, 0.2, 0.0]), np.zeros(3)) == 0.0
+    assert step_cosine(np.array([0.0, 0.0, 0.02]), np.array([0.1, 0.0, 0.02])) == \
+        pytest.approx(math.sqrt(0.5), rel=1e-12)
 
 
 def test_surface_information_reports_the_rms_of_the_inlier_distances():
@@ -395,9 +398,17 @@ def test_surface_information_reports_the_rms_of_the_inlier_distances():
     moved = rng.uniform(-5.0, 5.0, (50, 2))
     normals = np.tile([0.0, 1.0], (50, 1))
     usable = np.ones(50, dtype=bool)
-    _, rms = surface_information(moved, np.zeros(2), values, normals, usable, 0.6, 3.0,
-                                 kernel_code('none'), 0.05)
+    normals = np.column_stack((np.cos(moved[:, 0]), np.sin(moved[:, 0])))
+    translation = np.array([0.7, -0.4])
+    information, rms = surface_information(moved, translation, values, normals, usable, 0.6,
+                                           3.0, kernel_code('none'), 0.05)
     assert rms == pytest.approx(math.sqrt(np.mean(values[3:] ** 2)), rel=1e-12)
+    # Point to line, lever arms from the estimate's translation: J = [n, l x n].
+    levers = moved[3:] - translation
+    jac = np.column_stack((normals[3:], levers[:, 0] * normals[3:, 1]
+                           - levers[:, 1] * normals[3:, 0]))
+    variance = np.sum(values[3:] ** 2) / (47 - 3)
+    np.testing.assert_allclose(information, jac.T @ jac / variance, rtol=1e-10)
 
 
 def _refine_by_definition(cfg: ImlsConfig, model, chosen, first, estimate, far, capture):
@@ -455,24 +466,31 @@ def _refine_by_definition(cfg: ImlsConfig, model, chosen, first, estimate, far, 
     return estimate, converged, iterations
 
 
-@pytest.mark.parametrize('settings, guess, chosen_count', [
-    ({}, se2.pose(0.05, -0.03, 0.02), 300),                          # near: fine radius
-    ({}, se2.pose(0.25, 0.2, -0.1), 300),                            # far: capture radius
-    ({'planarity_power': 0.5, 'projection_normal': 'mean'}, se2.pose(0.05, 0.0, 0.03), 300),
-    ({'planarity_power': 0.0, 'robust_kernel': 'cauchy', 'robust_scale': 0.01},
-     se2.pose(0.1, 0.1, 0.0), 300),
-    ({'max_iterations': 6, 'coarse_tolerance': 0.0}, se2.pose(0.3, 0.0, 0.1), 300),  # cap
-    ({'min_correspondences': 301}, se2.pose(0.05, 0.0, 0.0), 300),     # too few points
+@pytest.mark.parametrize('world, settings, guess, noise', [
+    (ROOM, {}, se2.pose(0.05, -0.03, 0.02), 0.01),                    # near: fine radius
+    (ROOM, {}, se2.pose(0.25, 0.2, -0.1), 0.01),                      # far: capture radius
+    (ROOM, {'planarity_power': 0.5, 'projection_normal': 'mean'}, se2.pose(0.05, 0.0, 0.03),
+     0.01),
+    (ROOM, {'planarity_power': 0.0, 'robust_kernel': 'cauchy', 'robust_scale': 0.01},
+     se2.pose(0.1, 0.1, 0.0), 0.01),
+    (ROOM, {'robust_kernel': 'tukey', 'robust_scale': 0.01}, se2.pose(0.05, -0.03, 0.02),
+     0.02),                                                            # long aligned runs
+    (ROOM, {'max_neighbours': 1, 'min_neighbours': 1}, se2.pose(0.05, 0.0, 0.02), 0.01),
+    (CORRIDOR, {}, se2.pose(0.4, 0.05, 0.0), 0.01),                   # steps that reverse
+    (CORRIDOR, {'coarse_tolerance': 0.0}, se2.pose(0.4, 0.05, 0.0), 0.01),  # creeping
+    (ROOM, {'max_iterations': 6, 'coarse_tolerance': 0.0}, se2.pose(0.3, 0.0, 0.1),
+     0.01),                                                            # the share and cap
+    (ROOM, {'min_correspondences': 301}, se2.pose(0.05, 0.0, 0.0), 0.01),   # too few
 ])
-def test_refinement_follows_its_two_stages(settings, guess, chosen_count):
-    truth = se2.pose(0.2, 0.1, 0.05)
-    noisy = LaserModel(beams=720, fov=2.0 * math.pi, max_range=20.0, noise_sigma=0.01)
-    reference = _scan(ROOM, se2.pose(0.0, 0.0, 0.0), noisy, seed=3)
-    current = _scan(ROOM, truth, noisy, seed=4)
+def test_refinement_follows_its_two_stages(world, settings, guess, noise):
+    truth = se2.pose(0.2, 0.1, 0.05) if world is ROOM else se2.pose()
+    laser = LaserModel(beams=720, fov=2.0 * math.pi, max_range=20.0, noise_sigma=noise)
+    reference = _scan(world, se2.pose(0.0, 0.0, 0.0), laser, seed=3)
+    current = _scan(world, truth, laser, seed=4)
     matcher = create_matcher('imls', settings)
     cfg = matcher.config
     model = matcher._model(reference)
-    chosen = current.points[::2][:chosen_count]
+    chosen = current.points[::2][:300]
     estimate = se2.compose(truth, guess)
     capture = max(cfg.radius, cfg.max_correspondence_distance)
     first = implicit_surface(model, se2.transform_points(estimate, chosen), cfg.h, capture,
