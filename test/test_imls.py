@@ -318,6 +318,14 @@ def test_selection_takes_only_ranked_points():
                                            per_list, H, RADIUS, 4, 2)
         np.testing.assert_array_equal(chosen, _selected_by_definition(scores, usable, per_list))
         assert len(chosen) == count and sample.defined.all()
+    # Against samples 0.5 m apart most points have one neighbour within the radius:
+    # enough with min_neighbours 1.
+    sparse = _line_model(spacing=0.5)
+    reach = implicit_surface(sparse, points, H, RADIUS, 4, 1).defined
+    chosen, _ = select_on_surface(sparse, ranking, points, se2.pose(), 300, H, RADIUS, 4, 1)
+    np.testing.assert_array_equal(chosen, _selected_by_definition(scores, usable & reach, 300))
+    pairs = implicit_surface(sparse, points, H, RADIUS, 4, 2).defined   # near midpoints
+    assert reach.all() and np.count_nonzero(pairs) < 0.25 * len(points)
 
 
 def test_opposite_normals_that_cancel_leave_no_mean_normal():
