@@ -147,6 +147,7 @@ def _surface_by_definition(points, normals, usable, x, h, radius, k):
 
 
 @pytest.mark.parametrize('h, radius, k, spread, defined', [(0.1, 0.35, 5, 1.3, 171),
+                                                           (0.1, 0.35, 1, 1.3, 124),
                                                            (0.05, 3.0, 3, 3.0, 200)])
 def test_surface_follows_its_definition_at_random_queries(h, radius, k, spread, defined):
     # Random points, normals and unusable points; one usable neighbour is enough
@@ -319,11 +320,17 @@ def test_selection_takes_only_ranked_points():
         np.testing.assert_array_equal(chosen, _selected_by_definition(scores, usable, per_list))
         assert len(chosen) == count and sample.defined.all()
     # Against samples 0.5 m apart most points have one neighbour within the radius:
-    # enough with min_neighbours 1.
-    sparse = _line_model(spacing=0.5)
-    reach = implicit_surface(sparse, points, H, RADIUS, 4, 1).defined
-    chosen, _ = select_on_surface(sparse, ranking, points, se2.pose(), 300, H, RADIUS, 4, 1)
+    # enough with min_neighbours 1; with max_neighbours 1 the surface is the nearest
+    # sample's tangent line (the samples' normals tilt by turns, so two differ).
+    samples = np.column_stack((np.arange(-5.0, 5.01, 0.5), np.zeros(21)))
+    tilt = 0.2 * (-1.0) ** np.arange(21)
+    sparse = model_from_arrays(samples, np.column_stack((np.sin(tilt), np.cos(tilt))))
+    nearest_only = implicit_surface(sparse, points, H, RADIUS, 1, 1)
+    reach = nearest_only.defined
+    chosen, sample = select_on_surface(sparse, ranking, points, se2.pose(), 300, H, RADIUS, 1,
+                                       1)
     np.testing.assert_array_equal(chosen, _selected_by_definition(scores, usable & reach, 300))
+    np.testing.assert_array_equal(sample.value, nearest_only.value[chosen])
     pairs = implicit_surface(sparse, points, H, RADIUS, 4, 2).defined   # near midpoints
     assert reach.all() and np.count_nonzero(pairs) < 0.25 * len(points)
 
@@ -336,6 +343,10 @@ def test_opposite_normals_that_cancel_leave_no_mean_normal():
     sample = implicit_surface(model, np.array([[0.0, 0.05]]), H, RADIUS, 4, 2)
     assert sample.defined[0]
     np.testing.assert_array_equal(sample.mean_normal, [[0.0, 0.0]])
+    # A reference of one point still has a surface near it.
+    single = model_from_arrays(np.array([[0.0, 0.0]]), np.array([[0.0, 1.0]]))
+    sample = implicit_surface(single, np.array([[0.1, 0.05]]), H, RADIUS, 4, 1)
+    assert sample.defined[0] and sample.value[0] == pytest.approx(0.05, abs=1e-12)
 
 
 def test_gauss_newton_step_leaves_an_unconstrained_direction_alone():
