@@ -406,6 +406,8 @@ def test_step_cosine_measures_rotation_as_the_arc_at_five_metres():
     assert step_cosine(np.array([0.3, -0.4, 0.0]), np.array([-0.6, 0.8, 0.0])) == \
         pytest.approx(-1.0, rel=1e-12)
     assert step_cosine(np.array([0.1, 0.2, 0.0]), np.zeros(3)) == 0.0
+    assert step_cosine(np.array([0.0, 0.1, 0.0]), np.array([0.1, 0.1, 0.0])) == \
+        pytest.approx(math.sqrt(0.5), rel=1e-12)
     assert step_cosine(np.array([0.0, 0.0, 0.02]), np.array([0.1, 0.0, 0.02])) == \
         pytest.approx(math.sqrt(0.5), rel=1e-12)
 
