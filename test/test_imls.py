@@ -151,8 +151,8 @@ def _surface_by_definition(points, normals, usable, x, h, radius, k):
                                                            (0.05, 3.0, 3, 3.0, 200)])
 def test_surface_follows_its_definition_at_random_queries(h, radius, k, spread, defined):
     # Random points, normals and unusable points; one usable neighbour is enough
-    # (min_neighbours 1). The second case reaches 3 m with a 5 cm kernel: far queries
-    # keep a finite surface value.
+    # (min_neighbours 1). The second case sums a single neighbour; the last reaches 3 m
+    # with a 5 cm kernel: far queries keep a finite surface value.
     rng = np.random.default_rng(7)
     points = rng.uniform(-1.0, 1.0, (60, 2))
     angle = rng.uniform(-math.pi, math.pi, 60)
@@ -417,7 +417,6 @@ def test_surface_information_reports_the_rms_of_the_inlier_distances():
     values = rng.normal(0.0, 0.01, 50)
     values[:3] = 1.0                                   # outliers, trimmed
     moved = rng.uniform(-5.0, 5.0, (50, 2))
-    normals = np.tile([0.0, 1.0], (50, 1))
     usable = np.ones(50, dtype=bool)
     normals = np.column_stack((np.cos(moved[:, 0]), np.sin(moved[:, 0])))
     translation = np.array([0.7, -0.4])
