@@ -14,7 +14,7 @@ from laser_odom.core.datasets import load_dataset
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
 from laser_odom.core.matchers.base import MatchResult
 from laser_odom.core.matchers.imls import (
-    ALIGNED_COSINE, COARSE_SHARE, ImlsConfig, ImlsMatcher, MAX_GAIN)
+    ALIGNED_COSINE, COARSE_FRACTION, COARSE_SHARE, ImlsConfig, ImlsMatcher, MAX_GAIN)
 from laser_odom.core.matchers.imls_solver import (
     advance, fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system,
     step_cosine, surface_information)
@@ -476,11 +476,10 @@ def _refine_by_definition(cfg: ImlsConfig, model, chosen, first, estimate, far, 
         previous = step
         estimate = advance(estimate, gain * step)
         if approach:
-            small = (math.hypot(step[0], step[1]) < cfg.coarse_tolerance
-                     and abs(step[2]) < cfg.coarse_tolerance)
-            approach = not small and iterations < COARSE_SHARE * cfg.max_iterations
-        elif (math.hypot(gain * step[0], gain * step[1]) < cfg.convergence_translation
-              and abs(gain * step[2]) < cfg.convergence_rotation):
+            approach = (not se2.is_small_step(step, cfg.coarse_tolerance, cfg.coarse_tolerance)
+                        and iterations < COARSE_SHARE * cfg.max_iterations)
+        elif se2.is_small_step(gain * step, cfg.convergence_translation,
+                               cfg.convergence_rotation):
             converged = True
             break
     return estimate, converged, iterations
@@ -515,7 +514,7 @@ def test_refinement_follows_its_two_stages(world, settings, guess, noise):
     capture = max(cfg.radius, cfg.max_correspondence_distance)
     first = implicit_surface(model, se2.transform_points(estimate, chosen), cfg.h, capture,
                              cfg.max_neighbours, cfg.min_neighbours)
-    far = bool(np.median(np.abs(first.value)) > 0.25 * cfg.radius)   # COARSE_FRACTION
+    far = bool(np.median(np.abs(first.value)) > COARSE_FRACTION * cfg.radius)
     compiled = matcher._refine(model, chosen, first, estimate, capture)
     spec = _refine_by_definition(cfg, model, chosen, first, estimate, far, capture)
     np.testing.assert_allclose(compiled[0], spec[0], rtol=0, atol=1e-12)

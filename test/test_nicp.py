@@ -184,6 +184,36 @@ def test_point_information_is_strong_across_a_wall_and_weak_along_it():
     assert flat[:, 0].max() < 1e-3 * flat[:, 2].min()
 
 
+# --- correspondence rules ----------------------------------------------------------
+
+def _rule_setup():
+    """Return a reference wall y = 1 (x in [-1, 1]) with an isolated point, its surface."""
+    xs = np.arange(-1.0, 1.0 + 1e-9, 0.02)
+    points = np.vstack((np.column_stack((xs, np.ones_like(xs))), [[3.0, 3.0]]))
+    reference = _points(points)
+    config = NicpConfig()
+    surface = nicp_surface(reference, config.surface_settings())
+    return reference, surface, config
+
+
+def _candidates(surface):
+    """Six current points (already moved), each breaking at most one rule."""
+    wall_normal = np.array([0.0, -1.0])
+    moved = np.array([[0.0, 1.0],     # 0: control, passes every rule
+                      [0.2, 1.0],     # 1: its own normal is undefined
+                      [2.95, 3.0],    # 2: nearest reference point has no normal
+                      [0.4, 1.3],     # 3: 0.3 m from the wall
+                      [0.6, 1.0],     # 4: normal 60 degrees off
+                      [-0.4, 1.0]])   # 5: curved (a corner) against a flat wall
+    turned = np.array([math.sin(math.radians(60.0)), -math.cos(math.radians(60.0))])
+    normals = np.array([wall_normal, wall_normal, [0.0, -1.0], wall_normal, turned,
+                        wall_normal])
+    flat = math.log(NicpConfig().curvature_floor)
+    log_curvature = np.array([flat, flat, flat, flat, flat, math.log(0.25)])
+    usable = np.array([True, False, True, True, True, True])
+    return moved, normals, log_curvature, usable
+
+
 def test_each_rejection_rule_drops_the_pair_it_should():
     reference, surface, config = _rule_setup()
     moved, normals, log_curvature, usable = _candidates(surface)
@@ -559,33 +589,3 @@ def test_debiased_information_does_not_claim_the_axis_of_a_straight_wall():
     bias = np.mean(naive) - along
     assert bias > 50.0 * along                       # the leak dwarfs the real weight
     assert abs(np.mean(debiased) - along) < 0.15 * bias
-
-
-# --- correspondence rules ----------------------------------------------------------
-
-def _rule_setup():
-    """Return a reference wall y = 1 (x in [-1, 1]) with an isolated point, its surface."""
-    xs = np.arange(-1.0, 1.0 + 1e-9, 0.02)
-    points = np.vstack((np.column_stack((xs, np.ones_like(xs))), [[3.0, 3.0]]))
-    reference = _points(points)
-    config = NicpConfig()
-    surface = nicp_surface(reference, config.surface_settings())
-    return reference, surface, config
-
-
-def _candidates(surface):
-    """Six current points (already moved), each breaking at most one rule."""
-    wall_normal = np.array([0.0, -1.0])
-    moved = np.array([[0.0, 1.0],     # 0: control, passes every rule
-                      [0.2, 1.0],     # 1: its own normal is undefined
-                      [2.95, 3.0],    # 2: nearest reference point has no normal
-                      [0.4, 1.3],     # 3: 0.3 m from the wall
-                      [0.6, 1.0],     # 4: normal 60 degrees off
-                      [-0.4, 1.0]])   # 5: curved (a corner) against a flat wall
-    turned = np.array([math.sin(math.radians(60.0)), -math.cos(math.radians(60.0))])
-    normals = np.array([wall_normal, wall_normal, [0.0, -1.0], wall_normal, turned,
-                        wall_normal])
-    flat = math.log(NicpConfig().curvature_floor)
-    log_curvature = np.array([flat, flat, flat, flat, flat, math.log(0.25)])
-    usable = np.array([True, False, True, True, True, True])
-    return moved, normals, log_curvature, usable
