@@ -143,6 +143,42 @@ class KeyframeConfig:
         0.0, '...or turned this far [rad] (0 = scan-to-scan).', 0.0, math.pi)
 
 
+REFERENCES = ('scan', 'local_map')
+"""What each scan is matched against: the previous scan (or keyframe), or a local map."""
+
+
+@dataclass
+class LocalMapConfig:
+    """What each scan is matched against, and the local map of recent scans."""
+
+    reference: str = param(
+        'scan', 'What each scan is matched against: scan (the previous scan, or the '
+        'keyframe) or local_map (a map of the recent scans around the robot: less drift, '
+        'some more time per scan; keyframe_distance and keyframe_angle do not apply).',
+        choices=REFERENCES)
+    map_insert_distance: float = param(
+        0.1, 'A matched scan joins the local map when the robot moved this far [m] since '
+        'the last scan that joined...', 0.0, 10.0)
+    map_insert_angle: float = param(
+        0.05, '...or turned this far [rad].', 0.0, math.pi)
+    map_resolution: float = param(
+        0.05, 'Cell size [m] of the local map: points within one cell are averaged.',
+        0.005, 1.0)
+    map_radius: float = param(
+        50.0, 'The local map keeps the cells within this distance [m] of the robot.',
+        1.0, 500.0)
+    map_max_points: int = param(
+        30000, 'Most cells the local map keeps (the longest unseen go first): bounds its '
+        'memory and the time per scan.', 100, 10_000_000)
+    map_max_age: int = param(
+        50, 'A cell not seen again by this many of the scans that joined the map since is '
+        'dropped: the map holds the recent metres, where the odometry has not drifted yet.',
+        1, 1_000_000)
+    map_cell_weight: int = param(
+        20, 'Observations a map cell averages; beyond, older ones fade (a cell follows a '
+        'changed scene).', 1, 100000)
+
+
 @dataclass
 class PipelineConfig:
     """Everything the odometry pipeline needs, grouped by concern."""
@@ -155,6 +191,7 @@ class PipelineConfig:
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
     search: GlobalSearchConfig = field(default_factory=GlobalSearchConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
 
     def resolved_matcher_config(self) -> MatcherConfig:
         """Return the matcher's configuration, its tuned defaults when unset."""
@@ -162,7 +199,8 @@ class PipelineConfig:
             self.matcher)
 
 
-PIPELINE_GROUPS = ('scan', 'mounting', 'motion', 'acceptance', 'search', 'keyframes')
+PIPELINE_GROUPS = ('scan', 'mounting', 'motion', 'acceptance', 'search', 'keyframes',
+                   'local_map')
 
 
 def pipeline_config_from_params(values: Mapping[str, Any]) -> PipelineConfig:

@@ -197,6 +197,75 @@ def evaluate(estimate: Trajectory, reference: Trajectory,
         pairs=len(ref_index), alignment=alignment, rpe_trans=trans, rpe_rot=rot)
 
 
+DRIFT_SEGMENT = 50.0
+"""Path length [m] of the segments the drift is measured over (KITTI uses 100-800 m of
+road; indoors 50 m spans a few corridors)."""
+
+SHORTER_SEGMENTS = (20.0, 10.0, 5.0, 2.0)
+"""Segment lengths [m] for runs too short for :data:`DRIFT_SEGMENT`: the longest that
+fits twice into the reference path."""
+
+
+@dataclass
+class SegmentDrift:
+    """Drift per path length over segments of ``length`` metres (KITTI style).
+
+    ``translation`` is the mean translational error in percent of the segment's path
+    length, ``rotation`` the mean rotational error in degrees per metre, over
+    ``segments`` segments (one from every paired pose with ``length`` of path ahead).
+    NaN when the run is too short for one segment.
+    """
+
+    length: float
+    translation: float
+    rotation: float
+    segments: int
+
+
+def drift_segment_length(path_length: float) -> float:
+    """Return the segment length for a run whose reference path is ``path_length`` [m].
+
+    :data:`DRIFT_SEGMENT` when the path holds two such segments, else the longest of
+    :data:`SHORTER_SEGMENTS` it holds twice (the shortest when none).
+    """
+    for length in (DRIFT_SEGMENT,) + SHORTER_SEGMENTS:
+        if path_length >= 2.0 * length:
+            return length
+    return SHORTER_SEGMENTS[-1]
+
+
+def segment_drift(estimate: Trajectory, reference: Trajectory, length: float | None = None,
+                  max_offset_ns: int = DEFAULT_MAX_OFFSET_NS) -> SegmentDrift:
+    """Return the drift over segments of ``length`` metres of reference path.
+
+    The KITTI odometry benchmark's measure (Geiger, Lenz & Urtasun, "Are we ready for
+    autonomous driving?", CVPR 2012, Sec. 3.2, and its devkit): from every paired
+    pose ``i`` the segment runs to the first pose ``j`` whose reference path length
+    from ``i`` reaches ``length``; its error is
+    ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` and it scores ``|t(E)| / d`` and ``|theta(E)| /
+    d`` with ``d`` the segment's path length. The mean over all segments is returned;
+    ``length`` defaults to :func:`drift_segment_length` of the reference path.
+    """
+    ref_index, est_index = associate(estimate, reference, max_offset_ns)
+    est_poses = estimate.poses[est_index]
+    ref_poses = paired_reference_poses(estimate, reference, ref_index, est_index)
+    travelled = np.concatenate(([0.0], np.cumsum(np.hypot(
+        *np.diff(ref_poses[:, :2], axis=0).T)))) if len(ref_poses) else np.zeros(0)
+    total = float(travelled[-1]) if len(travelled) else 0.0
+    length = drift_segment_length(total) if length is None else float(length)
+    ends = np.searchsorted(travelled, travelled + length)
+    starts = np.flatnonzero(ends < len(travelled))
+    if len(starts) == 0:
+        return SegmentDrift(length, math.nan, math.nan, 0)
+    ends = ends[starts]
+    error = _relative_many(_relative_many(ref_poses[starts], ref_poses[ends]),
+                           _relative_many(est_poses[starts], est_poses[ends]))
+    path = travelled[ends] - travelled[starts]
+    return SegmentDrift(length,
+                        float(np.mean(np.hypot(error[:, 0], error[:, 1]) / path) * 100.0),
+                        float(np.degrees(np.mean(np.abs(error[:, 2]) / path))), len(starts))
+
+
 def _mean(values: np.ndarray) -> float:
     """Return the mean, 0 for no values."""
     return float(np.mean(values)) if len(values) else 0.0

@@ -20,6 +20,7 @@ from laser_odom.core.acceptance import describe_rejection, judge_match, MatchVer
 from laser_odom.core.config import PipelineConfig
 from laser_odom.core.deskew import deskew_change, DESKEW_EVENTS, deskewed, twist_of_step
 from laser_odom.core.events import EventLog
+from laser_odom.core.map_reference import fits_usual, MapReference
 from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
 from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
@@ -90,8 +91,17 @@ class OdometryPipeline:
         self.validator = ScanValidator(self.config.scan, self.config.mounting, self.events)
         self.motion = MotionModel(self.config.motion)
         self.registrar = Registrar(self.events)
+        self.scan_registrar = Registrar(self.events)
         self.processing_times: deque[float] = deque(maxlen=TIMING_WINDOW)
+        self.map_reference = self._map_reference(self.config)
         self.reset()
+
+    @staticmethod
+    def _map_reference(config: PipelineConfig) -> MapReference | None:
+        """Return a new local map when scans are matched against one, else None."""
+        if config.local_map.reference != 'local_map':
+            return None
+        return MapReference(config.local_map, config.mounting.mounting())
 
     def reset(self, pose: se2.Pose | None = None,
               covariance: np.ndarray | None = None) -> None:
@@ -108,6 +118,8 @@ class OdometryPipeline:
         self.last_stamp_ns: int | None = None
         self.untrusted = 'reset'
         self.motion.reset()
+        if self.map_reference is not None:
+            self.map_reference.reset()
 
     def set_matcher(self, matcher: ScanMatcher) -> None:
         """Switch the matcher; the pose and the reference scan are kept."""
@@ -122,9 +134,11 @@ class OdometryPipeline:
 
         A new matcher or matcher setting replaces the matcher (:meth:`set_matcher`). A new
         laser mounting changes every base-frame point, so the reference scan is dropped and
-        integration restarts from the current pose; other settings keep the reference.
+        integration restarts from the current pose, as it does for a new ``reference`` or
+        local-map setting (the map starts again); other settings keep the reference.
         """
         mounting_changed = config.mounting != self.config.mounting
+        map_changed = config.local_map != self.config.local_map
         matcher_config = config.resolved_matcher_config()
         if config.matcher != self.matcher.name or matcher_config != self.matcher.config:
             matcher = matcher_class(config.matcher)(matcher_config)
@@ -134,7 +148,9 @@ class OdometryPipeline:
         self.set_matcher(matcher)
         self.validator = ScanValidator(config.scan, config.mounting, self.events)
         self.motion.config = config.motion
-        if mounting_changed:
+        if map_changed or (mounting_changed and self.map_reference is not None):
+            self.map_reference = self._map_reference(config)
+        if mounting_changed or map_changed:
             self.reset(self.pose, self.pose_covariance)
 
     def process(self, scan: LaserScan, prior_step: se2.Pose | None = None,
@@ -155,6 +171,8 @@ class OdometryPipeline:
         dt = self._elapsed(scan.stamp_ns)
         if dt is None:
             return None
+        if self.map_reference is not None:
+            self.map_reference.observe_scan(scan)
         if self.keyframe is None:
             estimate = self._initialise(current, scan.stamp_ns)
         else:
@@ -176,13 +194,17 @@ class OdometryPipeline:
         them off the receipt-to-publish path. The result never depends on this call;
         without it the next match builds the same on demand. The time counts in the
         scan's processing time. A keyframe that the next match will de-skew again (its
-        sweep follows its stamp) is replaced by then, so it is not prepared.
+        sweep follows its stamp) is replaced by then, so it is not prepared. Against a
+        local map, the scan waiting to join it joins now, and the view from the new pose
+        is rendered and prepared.
         """
         keyframe = self.keyframe
         if (keyframe is None or self.keyframe_prepared
                 or (not self.keyframe_deskewed and keyframe.times is not None)):
             return 0.0
         started = time.perf_counter()
+        if self.map_reference is not None:
+            keyframe = self._use_map_view()
         self.matcher.prepare_reference(keyframe)
         self.keyframe_prepared = True
         elapsed = time.perf_counter() - started
@@ -225,6 +247,8 @@ class OdometryPipeline:
         measures the motion (:meth:`_deskew_again`).
         """
         self._set_keyframe(current, motion_known=False)
+        if self.map_reference is not None:
+            self.map_reference.restart(current, self.pose)
         return OdometryEstimate(stamp_ns, self.pose.copy(), self.pose_covariance.copy(),
                                 np.zeros(3), np.eye(3) * 1e-6, 'initialized',
                                 scan_points=current.points)
@@ -232,19 +256,25 @@ class OdometryPipeline:
     def _register(self, current: ScanPoints, guess_step: se2.Pose, dt: float,
                   stamp_ns: int, untrusted: str) -> OdometryEstimate:
         """Match against the keyframe, judge the match and integrate the step."""
+        if self.map_reference is not None:
+            self._use_map_view()
         guess = se2.relative(self.keyframe_pose, se2.compose(self.pose, guess_step))
         sweep_dt = self.motion.effective_dt(dt)
         sweep_twist = twist_of_step(guess_step, sweep_dt)
         current = deskewed(current, sweep_twist)
         if not self.keyframe_deskewed and deskew_change(self.keyframe, sweep_twist) > 0.0:
             self.keyframe = deskewed(self.keyframe, sweep_twist)  # its sweep: this step
-        registration = self.registrar.register(self.matcher, self.keyframe, current, guess,
-                                               self.config, untrusted)
+        reference, registrar = self.keyframe, self.registrar
+        registration = registrar.register(self.matcher, reference, current, guess,
+                                          self.config, untrusted)
         verdict = judge_match(registration, guess, self.config, current.length_scale)
+        if self.map_reference is not None and not clean_match(registration, verdict):
+            reference, registrar, registration, verdict = self._second_opinion(
+                current, guess, untrusted, registration, verdict)
         self._say_why(registration, verdict, guess, stamp_ns)
         if current.times is not None and verdict.status != 'rejected':
             current, registration, verdict = self._deskew_again(
-                current, sweep_dt, registration, verdict)
+                current, sweep_dt, registration, verdict, reference, registrar)
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         # Compounding with correlated step errors (shared scans, bias): pose_uncertainty.
         # Only a good match's error is scan noise that the next match cancels; the
@@ -267,9 +297,11 @@ class OdometryPipeline:
             self.untrusted = 'rejected'
         else:
             self.motion.update(step, dt)
-            self.registrar.accepted(registration.match)
+            registrar.accepted(registration.match)
             self.untrusted = ''
-        if verdict.status == 'rejected' or self._keyframe_expired(verdict.pose):
+        if self.map_reference is not None:
+            self._update_map(current, verdict, registration, from_map=reference is self.keyframe)
+        elif verdict.status == 'rejected' or self._keyframe_expired(verdict.pose):
             # After a rejection the current scan becomes the reference at the predicted
             # pose: a bad prediction then costs one step, instead of misleading every
             # following match against the old reference.
@@ -283,7 +315,8 @@ class OdometryPipeline:
                                 scan_points=current.points, step_covariance=step_covariance)
 
     def _deskew_again(self, current: ScanPoints, sweep_dt: float,
-                      registration: Registration, verdict: MatchVerdict
+                      registration: Registration, verdict: MatchVerdict,
+                      reference: ScanPoints, registrar: Registrar
                       ) -> tuple[ScanPoints, Registration, MatchVerdict]:
         """De-skew with the twist the match measured, and match again if it matters.
 
@@ -304,10 +337,10 @@ class OdometryPipeline:
         if max(reference_shift, deskew_change(current, measured)) <= DESKEW_TOLERANCE:
             return current, registration, verdict
         if reference_shift > DESKEW_TOLERANCE:
-            self.keyframe = deskewed(self.keyframe, measured)
+            self.keyframe = reference = deskewed(self.keyframe, measured)
         again_points = deskewed(current, measured)
-        again = self.registrar.register(self.matcher, self.keyframe, again_points,
-                                        verdict.pose, self.config, '')
+        again = registrar.register(self.matcher, reference, again_points, verdict.pose,
+                                   self.config, '')
         second = judge_match(again, verdict.pose, self.config, again_points.length_scale)
         if second.status == 'rejected':
             return current, registration, verdict
@@ -346,6 +379,65 @@ class OdometryPipeline:
                              f'{registration.describe_alternatives()}; reported degenerate '
                              'with a covariance that covers the alternatives')
 
+    def _use_map_view(self) -> ScanPoints:
+        """Make the local map seen from the current pose the reference of the next match.
+
+        Every match then starts from the previous pose, as scan to scan does: the
+        estimate is the step, and its covariance compounds like a step's.
+        """
+        view = self.map_reference.view(self.pose, self.last_stamp_ns or 0)
+        if view is not self.keyframe:
+            self.keyframe = view
+            self.keyframe_prepared = False
+        self.keyframe_deskewed = True
+        self.keyframe_pose = self.pose.copy()
+        self.keyframe_uncertainty = self.uncertainty
+        self.scans_after_keyframe = 0
+        return view
+
+    def _second_opinion(self, current: ScanPoints, guess: se2.Pose, untrusted: str,
+                        registration: Registration, verdict: MatchVerdict
+                        ) -> tuple[ScanPoints, Registrar, Registration, MatchVerdict]:
+        """Match against the previous scan too when the match against the map was unclean.
+
+        The local map is the better reference as long as it describes the scene; where
+        it does not (the scene changed, the map went wrong, a corridor's end dropped
+        out of it) the previous scan still does. The view and the previous scan share
+        the previous pose's frame, so the same guess serves both. The previous scan's
+        result is taken when it is judged better (:func:`match_rank`); the map's
+        otherwise. Counted as ``map_fallback``.
+        """
+        previous = self.map_reference.previous_scan
+        chosen = (self.keyframe, self.registrar, registration, verdict)
+        if previous is None:
+            return chosen
+        second = self.scan_registrar.register(self.matcher, previous, current, guess,
+                                              self.config, untrusted)
+        second_verdict = judge_match(second, guess, self.config, current.length_scale)
+        if match_rank(second, second_verdict) > match_rank(registration, verdict):
+            self.events.count('map_fallback')
+            return previous, self.scan_registrar, second, second_verdict
+        return chosen
+
+    def _update_map(self, current: ScanPoints, verdict: MatchVerdict,
+                    registration: Registration, from_map: bool) -> None:
+        """Let a trusted scan join the local map; restart the map after a rejection.
+
+        A match against the map that was accepted, not ambiguous, and fits about as
+        well as usual places the scan well enough to build on (a degenerate one too:
+        its weak direction took the prediction, and the map, featureless along it,
+        stays consistent). A rejected match restarts the map from the current scan at
+        the predicted pose.
+        """
+        self.keyframe_prepared = False  # the next match sees the map from the new pose
+        if verdict.status == 'rejected':
+            self.map_reference.restart(current, self.pose)
+            return
+        usual = self.registrar.usual
+        fits = (from_map and not registration.alternatives
+                and fits_usual(registration.match, usual.residual(), usual.inlier_ratio()))
+        self.map_reference.offer(current, self.pose, fits)
+
     def _keyframe_expired(self, keyframe_to_current: se2.Pose) -> bool:
         """Tell whether the current scan becomes the new reference."""
         kf = self.config.keyframes
@@ -371,3 +463,22 @@ class OdometryPipeline:
         self.keyframe_pose = self.pose.copy()
         self.keyframe_uncertainty = self.uncertainty
         self.scans_after_keyframe = 0
+
+
+STATUS_RANK = {'rejected': 0, 'degenerate': 1, 'matched': 2}
+"""Order of the verdicts, worst first."""
+
+
+def clean_match(registration: Registration, verdict: MatchVerdict) -> bool:
+    """Tell whether a match is accepted with nothing to doubt.
+
+    Matched (not degenerate, not rejected), and neither the match from the prediction
+    failed nor did another pose fit alike.
+    """
+    return (verdict.status == 'matched' and not registration.local_failure
+            and not registration.alternatives)
+
+
+def match_rank(registration: Registration, verdict: MatchVerdict) -> tuple[int, bool]:
+    """Return how good a judged match is: its status, then whether it is clean."""
+    return STATUS_RANK[verdict.status], clean_match(registration, verdict)

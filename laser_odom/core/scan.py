@@ -80,7 +80,8 @@ class ScanPoints:
     that are adjacent only because invalid beams between them were dropped.
     ``times`` [s, relative to the stamp] are the beams' measurement times when the scan
     is de-skewed; ``measured`` then holds the points as measured, and ``twist`` the
-    twist they were de-skewed with (:mod:`laser_odom.core.deskew`).
+    twist they were de-skewed with (:mod:`laser_odom.core.deskew`). A virtual scan of
+    the local map (:mod:`laser_odom.core.local_map`) numbers its bearing bins as beams.
     """
 
     points: np.ndarray

@@ -50,6 +50,7 @@ SECTIONS = {
     'acceptance': 'Match acceptance and degeneracy',
     'search': 'Global search: matching without a trusted prediction',
     'keyframes': 'Keyframes',
+    'local_map': 'Reference: the previous scan or a local map of the recent scans',
 }
 
 
