@@ -264,13 +264,14 @@ class OdometryPipeline:
         current = deskewed(current, sweep_twist)
         if not self.keyframe_deskewed and deskew_change(self.keyframe, sweep_twist) > 0.0:
             self.keyframe = deskewed(self.keyframe, sweep_twist)  # its sweep: this step
-        reference, registrar = self.keyframe, self.registrar
-        registration = registrar.register(self.matcher, reference, current, guess,
-                                          self.config, untrusted)
-        verdict = judge_match(registration, guess, self.config, current.length_scale)
-        if self.map_reference is not None and not clean_match(registration, verdict):
-            reference, registrar, registration, verdict = self._second_opinion(
-                current, guess, untrusted, registration, verdict)
+        if self.map_reference is None:
+            reference, registrar = self.keyframe, self.registrar
+            registration = registrar.register(self.matcher, reference, current, guess,
+                                              self.config, untrusted)
+            verdict = judge_match(registration, guess, self.config, current.length_scale)
+        else:
+            reference, registrar, registration, verdict = self._register_map(
+                current, guess, untrusted)
         self._say_why(registration, verdict, guess, stamp_ns)
         if current.times is not None and verdict.status != 'rejected':
             current, registration, verdict = self._deskew_again(
@@ -395,29 +396,53 @@ class OdometryPipeline:
         self.scans_after_keyframe = 0
         return view
 
-    def _second_opinion(self, current: ScanPoints, guess: se2.Pose, untrusted: str,
-                        registration: Registration, verdict: MatchVerdict
-                        ) -> tuple[ScanPoints, Registrar, Registration, MatchVerdict]:
-        """Match against the previous scan too when the match against the map was unclean.
+    def _register_map(self, current: ScanPoints, guess: se2.Pose, untrusted: str
+                      ) -> tuple[ScanPoints, Registrar, Registration, MatchVerdict]:
+        """Match against the local map, with the previous scan as the second opinion.
 
-        The local map is the better reference as long as it describes the scene; where
-        it does not (the scene changed, the map went wrong, a corridor's end dropped
-        out of it) the previous scan still does. The view and the previous scan share
-        the previous pose's frame, so the same guess serves both. The previous scan's
-        result is taken when it is judged better (:func:`match_rank`); the map's
-        otherwise. Counted as ``map_fallback``.
+        The map is the better reference as long as it describes the scene; where it
+        does not (the scene changed, the map went wrong, the scan sees what the map
+        dropped) the previous scan still does. Both share the previous pose's frame,
+        so one guess serves both. From a trusted prediction: the match against the
+        map stands when it is clean (:func:`clean_match`); else the match against the
+        previous scan when it is; only when neither is do the global search and the
+        full registration against both run, the better of the two judged results
+        (:func:`match_rank`, the map's on a tie) being taken. A result taken from the
+        previous scan is counted as ``map_fallback``.
         """
-        previous = self.map_reference.previous_scan
-        chosen = (self.keyframe, self.registrar, registration, verdict)
-        if previous is None:
-            return chosen
+        view, previous = self.keyframe, self.map_reference.previous_scan
+        local = None
+        if not untrusted:
+            local, passed = self.registrar.try_local(self.matcher, view, current, guess,
+                                                     self.config)
+            if passed:
+                registration = Registration(local)
+                verdict = judge_match(registration, guess, self.config,
+                                      current.length_scale)
+                if clean_match(registration, verdict):
+                    return view, self.registrar, registration, verdict
+            if previous is not None:
+                second, passed = self.scan_registrar.try_local(
+                    self.matcher, previous, current, guess, self.config)
+                if passed:
+                    registration = Registration(second)
+                    verdict = judge_match(registration, guess, self.config,
+                                          current.length_scale)
+                    if clean_match(registration, verdict):
+                        self.events.count('map_fallback')
+                        return previous, self.scan_registrar, registration, verdict
+        registration = self.registrar.register(self.matcher, view, current, guess,
+                                               self.config, untrusted, local)
+        verdict = judge_match(registration, guess, self.config, current.length_scale)
+        if previous is None or clean_match(registration, verdict):
+            return view, self.registrar, registration, verdict
         second = self.scan_registrar.register(self.matcher, previous, current, guess,
                                               self.config, untrusted)
         second_verdict = judge_match(second, guess, self.config, current.length_scale)
         if match_rank(second, second_verdict) > match_rank(registration, verdict):
             self.events.count('map_fallback')
             return previous, self.scan_registrar, second, second_verdict
-        return chosen
+        return view, self.registrar, registration, verdict
 
     def _update_map(self, current: ScanPoints, verdict: MatchVerdict,
                     registration: Registration, from_map: bool) -> None:

@@ -158,19 +158,24 @@ class Registrar:
         self.usual = UsualLevel()
 
     def register(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
-                 guess: se2.Pose, config: PipelineConfig, untrusted: str) -> Registration:
+                 guess: se2.Pose, config: PipelineConfig, untrusted: str,
+                 local: MatchResult | None = None) -> Registration:
         """Match ``current`` against ``reference`` from ``guess``.
 
         ``untrusted`` names why the prediction cannot be trusted ('' when it can).
+        ``local`` is the match from the prediction when it was already made
+        (:meth:`try_local`).
         """
         mode = config.search.global_search
         if mode == 'always' or (mode == 'recover' and untrusted):
-            local = self.local_match(matcher, reference, current, guess) \
-                if mode == 'always' else None
+            if mode == 'always' and local is None:
+                local = self.local_match(matcher, reference, current, guess)
             return self._search(matcher, reference, current, guess, config,
-                                'always' if mode == 'always' else untrusted, local, '',
+                                'always' if mode == 'always' else untrusted,
+                                local if mode == 'always' else None, '',
                                 trusted=not untrusted)
-        local = self.local_match(matcher, reference, current, guess)
+        if local is None:
+            local = self.local_match(matcher, reference, current, guess)
         failure = self.local_failure(local, guess, config)
         if failure and mode == 'recover':
             registration = self._search(matcher, reference, current, guess, config,
@@ -178,6 +183,18 @@ class Registrar:
             registration.failure_detail = self.describe_failure(failure, local, guess, config)
             return registration
         return Registration(local, local_failure=failure)
+
+    def try_local(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
+                  guess: se2.Pose, config: PipelineConfig) -> tuple[MatchResult, bool]:
+        """Run the match from a trusted prediction; return it and whether it passed.
+
+        Passed: no :meth:`local_failure`, the result :meth:`register` would return
+        without searching (with ``global_search: always`` nothing passes here).
+        """
+        local = self.local_match(matcher, reference, current, guess)
+        passed = (config.search.global_search != 'always'
+                  and not self.local_failure(local, guess, config))
+        return local, passed
 
     def accepted(self, match: MatchResult) -> None:
         """Record an accepted match: its fit joins the scans' usual level."""
