@@ -7,7 +7,8 @@ import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.metrics import (
-    align_se2, associate, distance_travelled, evaluate, relative_errors)
+    align_se2, associate, distance_travelled, drift_segment_length, evaluate, relative_errors,
+    segment_drift)
 from laser_odom.core.trajectory import Trajectory
 
 
@@ -132,3 +133,41 @@ def test_relative_errors_wraps_angles():
 def test_no_overlap_raises():
     with pytest.raises(ValueError):
         evaluate(Trajectory([0], [[0, 0, 0]]), Trajectory([10**9], [[0, 0, 0]]))
+
+
+# --- drift over segments of path (KITTI style) -------------------------------------
+
+def _straight(n: int, spacing: float, scale: float = 1.0, yaw_per_metre: float = 0.0
+              ) -> Trajectory:
+    """Return n poses ``spacing`` apart along x, the distances scaled and heading turned."""
+    s = np.arange(n) * spacing
+    return Trajectory(1_000_000_000 + 100_000_000 * np.arange(n),
+                      np.column_stack((scale * s, np.zeros(n), yaw_per_metre * s)))
+
+
+def test_segment_drift_of_a_scale_error_is_that_error_per_path_length():
+    reference = _straight(2001, 0.1)  # 200 m
+    drift = segment_drift(_straight(2001, 0.1, scale=1.01), reference)
+    assert drift.length == 50.0
+    assert drift.translation == pytest.approx(1.0, rel=1e-6)
+    assert drift.rotation == pytest.approx(0.0, abs=1e-12)
+    assert drift.segments == 2001 - 500
+
+
+def test_segment_drift_of_a_heading_drift_is_its_rate():
+    reference = _straight(2001, 0.1)
+    rate = math.radians(0.05)  # deg per metre
+    drift = segment_drift(_straight(2001, 0.1, yaw_per_metre=rate), reference)
+    assert drift.rotation == pytest.approx(0.05, rel=1e-6)
+
+
+def test_short_runs_use_shorter_segments_and_too_short_ones_have_none():
+    assert drift_segment_length(120.0) == 50.0
+    assert drift_segment_length(60.0) == 20.0
+    assert drift_segment_length(15.0) == 5.0
+    assert drift_segment_length(1.0) == 2.0
+    reference = _straight(601, 0.1)  # 60 m
+    drift = segment_drift(_straight(601, 0.1, scale=0.98), reference)
+    assert drift.length == 20.0 and drift.translation == pytest.approx(2.0, rel=1e-6)
+    none = segment_drift(_straight(11, 0.1), _straight(11, 0.1), length=5.0)
+    assert none.segments == 0 and math.isnan(none.translation)

@@ -15,12 +15,12 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.config import (
-    GlobalSearchConfig, MountingConfig, PipelineConfig, ScanConfig)
+    GlobalSearchConfig, LocalMapConfig, MountingConfig, PipelineConfig, ScanConfig)
 from laser_odom.core.consistency import (
     Consistency, NO_REFERENCE_NOISE, ReferenceNoise, run_consistency, WINDOWS)
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
-from laser_odom.core.metrics import evaluate
+from laser_odom.core.metrics import evaluate, segment_drift
 from laser_odom.core.params import param_info
 from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.pose_uncertainty import StepErrorModel
@@ -47,6 +47,9 @@ NOT_APPLICABLE = '-'
 
 DESKEW_MODES: tuple[str, ...] = tuple(param_info(ScanConfig, 'deskew').choices or ())
 """The pipeline's ``deskew`` values (``laser_odom_bench --deskew``)."""
+
+REFERENCE_MODES: tuple[str, ...] = tuple(param_info(LocalMapConfig, 'reference').choices or ())
+"""The pipeline's ``reference`` values (``laser_odom_bench --reference-modes``)."""
 
 WARMUP_SCANS = 10
 """Scans at the start of a run left out of the timing statistics (caches, imports)."""
@@ -191,6 +194,17 @@ class BenchRow:
     """Noise of each reference pose that the NEES accounts for, in x and in y [m]."""
     reference_noise_deg: float = 0.0
     """Noise of each reference pose that the NEES accounts for, in heading [deg]."""
+    reference: str = 'scan'
+    """What each scan was matched against: the pipeline's ``reference`` setting
+    (``scan`` or ``local_map``; ``-`` for the wheel odometry row)."""
+    drift_trans: float = math.nan
+    """Translational drift over segments of :attr:`drift_length` metres of path, in
+    percent of the path (KITTI style, :func:`.metrics.segment_drift`); NaN without a
+    reference."""
+    drift_rot: float = math.nan
+    """Rotational drift over the same segments [deg/m]."""
+    drift_length: float = math.nan
+    """Segment length of the drift [m]: 50, or shorter on a short log."""
 
     def as_dict(self) -> dict:
         """Return the row as a JSON-friendly dict."""
@@ -223,14 +237,22 @@ def _accuracy(estimate: Trajectory, reference: Trajectory) -> Accuracy:
 
 def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Trajectory,
          times: np.ndarray, rejected: int, consistency: Consistency | None = None,
-         noise: ReferenceNoise = NO_REFERENCE_NOISE) -> BenchRow:
-    """Score an estimated trajectory against the dataset's reference (if it has one)."""
+         noise: ReferenceNoise = NO_REFERENCE_NOISE, reference: str = 'scan') -> BenchRow:
+    """Score an estimated trajectory against the dataset's reference (if it has one).
+
+    ``reference`` is what the scans were matched against (the row key).
+    """
     timed = times[WARMUP_SCANS:] if times.size > 2 * WARMUP_SCANS else times
     median_ms = float(np.median(timed) * 1e3) if timed.size else float('nan')
     p95_ms = float(np.percentile(timed, 95) * 1e3) if timed.size else float('nan')
     beams = len(dataset.scans[0].ranges) if dataset.scans else 0
     row = BenchRow(dataset.name, matcher, prior, deskew, beams, len(dataset.scans),
-                   *_accuracy(estimate, dataset.reference), rejected, median_ms, p95_ms)
+                   *_accuracy(estimate, dataset.reference), rejected, median_ms, p95_ms,
+                   reference=reference)
+    if len(dataset.reference) and len(estimate):
+        drift = segment_drift(estimate, dataset.reference)
+        row.drift_trans, row.drift_rot = drift.translation, drift.rotation
+        row.drift_length = drift.length
     if consistency is not None:
         for name, n in NEES_FIELDS.items():
             setattr(row, name, consistency.windows[n])
@@ -254,10 +276,12 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
                   progress: Callable[[int], None] | None = None,
                   config: PipelineConfig | None = None,
                   deskew: str | None = None,
-                  reference_noise: ReferenceNoise = NO_REFERENCE_NOISE) -> BenchRow:
+                  reference_noise: ReferenceNoise = NO_REFERENCE_NOISE,
+                  reference: str | None = None) -> BenchRow:
     """Run the pipeline with ``matcher`` and bench ``prior`` over a dataset and score it.
 
-    ``deskew`` overrides the configuration's ``deskew`` setting when given.
+    ``deskew`` and ``reference`` (``scan``, ``local_map``) override the
+    configuration's settings of those names when given.
     ``reference_noise`` is the noise of each reference pose that the NEES accounts
     for (:data:`REAL_REFERENCE_NOISE` for a real log; none for a simulated one).
     """
@@ -269,6 +293,11 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
             raise ValueError(f'unknown deskew value {deskew!r}; valid: '
                              f'{", ".join(DESKEW_MODES)}')
         config.scan.deskew = deskew
+    if reference is not None:
+        if reference not in REFERENCE_MODES:
+            raise ValueError(f'unknown reference value {reference!r}; valid: '
+                             f'{", ".join(REFERENCE_MODES)}')
+        config.local_map.reference = reference
     pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
     feed = None
     if prior == 'odom':
@@ -278,7 +307,7 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
                                StepErrorModel.of(pipeline.matcher.config), reference_noise)
     return _row(dataset, matcher, prior, config.scan.deskew, result.trajectory,
                 result.processing_times, result.counters['rejected'], consistency,
-                reference_noise)
+                reference_noise, config.local_map.reference)
 
 
 def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:
@@ -298,7 +327,8 @@ def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:
 def wheel_odometry_row(dataset: Dataset) -> BenchRow:
     """Score raw wheel odometry alone: the do-nothing baseline for every matcher."""
     return _row(dataset, WHEEL_ODOMETRY, 'odom', NOT_APPLICABLE,
-                wheel_odometry_trajectory(dataset), np.zeros(0), 0)
+                wheel_odometry_trajectory(dataset), np.zeros(0), 0,
+                reference=NOT_APPLICABLE)
 
 
 SEARCH_PAIRS = 50

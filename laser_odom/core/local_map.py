@@ -23,8 +23,8 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.local_map_cells import (
-    add_points, ALIVE, EMPTY, FLOAT_COLUMNS, INT_COLUMNS, LAST_SEEN,
-    refresh_blocks, remove_cells, stale_cells)
+    add_points, ALIVE, cell_key, EMPTY, find_cell, FLOAT_COLUMNS, INT_COLUMNS, LAST_SEEN,
+    MEAN_X, MEAN_Y, refresh_blocks, remove_cells, stale_cells, WEIGHT)
 from laser_odom.core.local_map_view import ranges_by_bin, render_view, seen_through
 from laser_odom.core.scan import ScanPoints
 
@@ -35,7 +35,6 @@ into the view's point; farther ones are hidden behind it."""
 CARVE_MARGIN = 0.1
 """A cell is seen through when the beams reach at least this far [m] (plus two cells)
 beyond it."""
-
 
 
 @dataclass(frozen=True)
@@ -77,6 +76,17 @@ class LocalMap:
     def __len__(self) -> int:
         """Return the number of cells in use."""
         return int(self._ints.shape[0] - self._free_count[0])
+
+    def cell_means(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return the mean point (N, 2, odom frame) and weight (N,) of every cell in use."""
+        alive = np.flatnonzero(self._ints[:, ALIVE])
+        return (self._floats[alive][:, [MEAN_X, MEAN_Y]].copy(),
+                self._floats[alive, WEIGHT].copy())
+
+    def find(self, point: np.ndarray) -> int:
+        """Return the cell (row of the tables) holding odom-frame ``point``, -1 if none."""
+        key = cell_key(float(point[0]), float(point[1]), 1.0 / self.geometry.resolution)
+        return int(find_cell(self._slot_keys, self._slot_cells, key))
 
     @property
     def nbytes(self) -> int:
@@ -133,7 +143,7 @@ class LocalMap:
                            int(min_hits), self.insertions)
         return ScanPoints(points=np.ascontiguousarray(rows[:, :2]),
                           beam_index=rows[:, 3].astype(np.int64), ranges=rows[:, 2].copy(),
-                          stamp_ns=stamp_ns)
+                          stamp_ns=stamp_ns, virtual=True)
 
     def _refresh(self, changed: np.ndarray) -> None:
         """Pool the block moments around the changed cells again."""

@@ -246,7 +246,7 @@ def _pool_block(c: int, floats: np.ndarray, ints: np.ndarray, slot_keys: np.ndar
 @numba.njit(cache=True, nogil=True)
 def stale_cells(centre_x: float, centre_y: float, radius: float, oldest: int,
                 floats: np.ndarray, ints: np.ndarray) -> np.ndarray:
-    """Return the alive cells farther than ``radius`` from the centre or last seen before ``oldest``."""
+    """Return the alive cells beyond ``radius`` of the centre or last seen before ``oldest``."""
     out = np.empty(ints.shape[0], dtype=np.int64)
     count = 0
     radius2 = radius * radius

@@ -28,6 +28,7 @@ from laser_odom.core.local_map_cells import (
     ALIVE, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, HITS,
     LAST_SEEN, MEAN_X, MEAN_Y, S_XX, S_XY, S_YY, WEIGHT)
 
+
 @numba.njit(cache=True, nogil=True, inline='always')
 def _bin(qx: float, qy: float, bin_angle: float, bins: int) -> int:
     """Return the bearing bin (0 at -pi) of a sensor-frame direction."""

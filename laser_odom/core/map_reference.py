@@ -57,7 +57,6 @@ class MapReference:
                                         config.map_max_age))
         self.bin_angle = math.radians(0.5)
         self.max_range = config.map_radius
-        self.restarts = 0
         self.reset()
 
     def reset(self) -> None:
@@ -84,7 +83,7 @@ class MapReference:
             self.max_range = min(scan.range_max, self.config.map_radius)
 
     def offer(self, scan: ScanPoints, pose: se2.Pose, fits: bool = True,
-              force: bool = False) -> bool:
+              force: bool = False) -> str:
         """Let an accepted scan join the map at ``pose`` if the robot moved enough.
 
         ``fits`` says whether its match fitted the map about as well as accepted
@@ -93,33 +92,35 @@ class MapReference:
         and a wrong scan in the map would mislead every later match. After
         :data:`MAX_REFUSED` such scans in a row the map starts again from this one.
         ``force`` joins it whatever the motion and fit (the first scan after a
-        restart). Returns whether it will join. The scan is kept as the previous scan
-        in any case (the second opinion of the next match).
+        restart). Returns what became of it: ``'joined'``, ``'near'`` (too close to
+        the last scan that joined), ``'refused'`` or ``'restarted'`` (the map starts
+        again from it). The scan is kept as the previous scan in any case (the second
+        opinion of the next match).
         """
         self.previous_scan = scan
         if not force and self._last_joined is not None:
             moved = se2.relative(self._last_joined, pose)
             if (math.hypot(moved[0], moved[1]) < self.config.map_insert_distance
                     and abs(moved[2]) < self.config.map_insert_angle):
-                return False
+                return 'near'
+        outcome = 'joined'
         if not force and not fits:
             self.refused += 1
             if self.refused < MAX_REFUSED:
-                return False
+                return 'refused'
             self.reset()
             self.previous_scan = scan
-            self.restarts += 1
+            outcome = 'restarted'
         self.refused = 0
         self._flush()
         self._pending = (np.array(scan.points, dtype=float), np.array(pose, dtype=float))
         self._last_joined = np.array(pose, dtype=float)
         self._view = None
-        return True
+        return outcome
 
     def restart(self, scan: ScanPoints, pose: se2.Pose) -> None:
-        """Start the map again from one scan at ``pose`` (after a rejected match)."""
+        """Start the map again from one scan at ``pose`` (the first, or after a rejection)."""
         self.reset()
-        self.restarts += 1
         self.offer(scan, pose, force=True)
 
     def view(self, pose: se2.Pose, stamp_ns: int = 0) -> ScanPoints:

@@ -20,7 +20,7 @@ from laser_odom.core.acceptance import describe_rejection, judge_match, MatchVer
 from laser_odom.core.config import PipelineConfig
 from laser_odom.core.deskew import deskew_change, DESKEW_EVENTS, deskewed, twist_of_step
 from laser_odom.core.events import EventLog
-from laser_odom.core.map_reference import fits_usual, MapReference
+from laser_odom.core.map_registration import JudgedMatch, MAP_EVENTS, MapRegistrar
 from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
 from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
@@ -37,10 +37,10 @@ OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 're
 rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
 
 EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
-    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + tuple(DESKEW_EVENTS)
+    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + tuple(DESKEW_EVENTS) + MAP_EVENTS
 """Counters of events that do not skip the scan: a missing or dropped prior, a clock
-jump, an ambiguous match, each reason the global search ran, and sweep timing that
-was repaired or ignored."""
+jump, an ambiguous match, each reason the global search ran, sweep timing that was
+repaired or ignored, and what the local map did."""
 
 DESKEW_TOLERANCE = 0.02
 """Match again when the measured twist would move the de-skewed points more than this
@@ -91,17 +91,15 @@ class OdometryPipeline:
         self.validator = ScanValidator(self.config.scan, self.config.mounting, self.events)
         self.motion = MotionModel(self.config.motion)
         self.registrar = Registrar(self.events)
-        self.scan_registrar = Registrar(self.events)
         self.processing_times: deque[float] = deque(maxlen=TIMING_WINDOW)
-        self.map_reference = self._map_reference(self.config)
+        self.map_registrar = self._map_registrar(self.config)
         self.reset()
 
-    @staticmethod
-    def _map_reference(config: PipelineConfig) -> MapReference | None:
+    def _map_registrar(self, config: PipelineConfig) -> MapRegistrar | None:
         """Return a new local map when scans are matched against one, else None."""
         if config.local_map.reference != 'local_map':
             return None
-        return MapReference(config.local_map, config.mounting.mounting())
+        return MapRegistrar(config, self.events)
 
     def reset(self, pose: se2.Pose | None = None,
               covariance: np.ndarray | None = None) -> None:
@@ -118,8 +116,8 @@ class OdometryPipeline:
         self.last_stamp_ns: int | None = None
         self.untrusted = 'reset'
         self.motion.reset()
-        if self.map_reference is not None:
-            self.map_reference.reset()
+        if self.map_registrar is not None:
+            self.map_registrar.reset()
 
     def set_matcher(self, matcher: ScanMatcher) -> None:
         """Switch the matcher; the pose and the reference scan are kept."""
@@ -134,8 +132,9 @@ class OdometryPipeline:
 
         A new matcher or matcher setting replaces the matcher (:meth:`set_matcher`). A new
         laser mounting changes every base-frame point, so the reference scan is dropped and
-        integration restarts from the current pose, as it does for a new ``reference`` or
-        local-map setting (the map starts again); other settings keep the reference.
+        integration restarts from the current pose. A new ``reference`` or local-map
+        setting starts the map again from the last scan (:meth:`_switch_reference`);
+        other settings keep the reference.
         """
         mounting_changed = config.mounting != self.config.mounting
         map_changed = config.local_map != self.config.local_map
@@ -148,10 +147,34 @@ class OdometryPipeline:
         self.set_matcher(matcher)
         self.validator = ScanValidator(config.scan, config.mounting, self.events)
         self.motion.config = config.motion
-        if map_changed or (mounting_changed and self.map_reference is not None):
-            self.map_reference = self._map_reference(config)
-        if mounting_changed or map_changed:
+        if mounting_changed:
+            self.map_registrar = self._map_registrar(config)
             self.reset(self.pose, self.pose_covariance)
+        elif map_changed:
+            self._switch_reference(config)
+
+    def _switch_reference(self, config: PipelineConfig) -> None:
+        """Match against a new local map, or the previous scan, from the next scan on.
+
+        The last scan, at the current pose, is the first scan of the new map, or the
+        reference scan when the map is left; the motion to the next scan is matched
+        as usual. Without such a scan (none yet, or a keyframe behind the current
+        pose) integration restarts from the current pose.
+        """
+        if self.map_registrar is not None:  # the map's previous scan: at the current pose
+            last = self.map_registrar.map.previous_scan
+            at_pose = last is not None
+        else:
+            last = self.keyframe
+            at_pose = last is not None and np.array_equal(self.keyframe_pose, self.pose)
+        self.map_registrar = self._map_registrar(config)
+        if not at_pose:
+            self.reset(self.pose, self.pose_covariance)
+        elif self.map_registrar is not None:
+            self.map_registrar.restart(last, self.pose)
+            self.keyframe_prepared = False
+        else:
+            self._set_keyframe(last)
 
     def process(self, scan: LaserScan, prior_step: se2.Pose | None = None,
                 prior_yaw: float | None = None) -> OdometryEstimate | None:
@@ -171,8 +194,8 @@ class OdometryPipeline:
         dt = self._elapsed(scan.stamp_ns)
         if dt is None:
             return None
-        if self.map_reference is not None:
-            self.map_reference.observe_scan(scan)
+        if self.map_registrar is not None:
+            self.map_registrar.observe_scan(scan)
         if self.keyframe is None:
             estimate = self._initialise(current, scan.stamp_ns)
         else:
@@ -203,7 +226,7 @@ class OdometryPipeline:
                 or (not self.keyframe_deskewed and keyframe.times is not None)):
             return 0.0
         started = time.perf_counter()
-        if self.map_reference is not None:
+        if self.map_registrar is not None:
             keyframe = self._use_map_view()
         self.matcher.prepare_reference(keyframe)
         self.keyframe_prepared = True
@@ -247,8 +270,8 @@ class OdometryPipeline:
         measures the motion (:meth:`_deskew_again`).
         """
         self._set_keyframe(current, motion_known=False)
-        if self.map_reference is not None:
-            self.map_reference.restart(current, self.pose)
+        if self.map_registrar is not None:
+            self.map_registrar.restart(current, self.pose)
         return OdometryEstimate(stamp_ns, self.pose.copy(), self.pose_covariance.copy(),
                                 np.zeros(3), np.eye(3) * 1e-6, 'initialized',
                                 scan_points=current.points)
@@ -256,7 +279,7 @@ class OdometryPipeline:
     def _register(self, current: ScanPoints, guess_step: se2.Pose, dt: float,
                   stamp_ns: int, untrusted: str) -> OdometryEstimate:
         """Match against the keyframe, judge the match and integrate the step."""
-        if self.map_reference is not None:
+        if self.map_registrar is not None:
             self._use_map_view()
         guess = se2.relative(self.keyframe_pose, se2.compose(self.pose, guess_step))
         sweep_dt = self.motion.effective_dt(dt)
@@ -264,18 +287,18 @@ class OdometryPipeline:
         current = deskewed(current, sweep_twist)
         if not self.keyframe_deskewed and deskew_change(self.keyframe, sweep_twist) > 0.0:
             self.keyframe = deskewed(self.keyframe, sweep_twist)  # its sweep: this step
-        if self.map_reference is None:
-            reference, registrar = self.keyframe, self.registrar
-            registration = registrar.register(self.matcher, reference, current, guess,
-                                              self.config, untrusted)
-            verdict = judge_match(registration, guess, self.config, current.length_scale)
+        if self.map_registrar is None:
+            registration = self.registrar.register(self.matcher, self.keyframe, current,
+                                                   guess, self.config, untrusted)
+            judged = JudgedMatch(self.keyframe, self.registrar, registration, judge_match(
+                registration, guess, self.config, current.length_scale), False)
         else:
-            reference, registrar, registration, verdict = self._register_map(
-                current, guess, untrusted)
-        self._say_why(registration, verdict, guess, stamp_ns)
-        if current.times is not None and verdict.status != 'rejected':
-            current, registration, verdict = self._deskew_again(
-                current, sweep_dt, registration, verdict, reference, registrar)
+            judged = self.map_registrar.register(self.matcher, self.registrar, self.keyframe,
+                                                 current, guess, self.config, untrusted)
+        self._say_why(judged.registration, judged.verdict, guess, stamp_ns)
+        if current.times is not None and judged.verdict.status != 'rejected':
+            current, judged = self._deskew_again(current, sweep_dt, judged)
+        registration, verdict = judged.registration, judged.verdict
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         # Compounding with correlated step errors (shared scans, bias): pose_uncertainty.
         # Only a good match's error is scan noise that the next match cancels; the
@@ -298,10 +321,11 @@ class OdometryPipeline:
             self.untrusted = 'rejected'
         else:
             self.motion.update(step, dt)
-            registrar.accepted(registration.match)
+            judged.registrar.accepted(registration.match)
             self.untrusted = ''
-        if self.map_reference is not None:
-            self._update_map(current, verdict, registration, from_map=reference is self.keyframe)
+        if self.map_registrar is not None:
+            self.keyframe_prepared = False  # the next match sees the map from the new pose
+            self.map_registrar.update(current, self.pose, judged, stamp_ns)
         elif verdict.status == 'rejected' or self._keyframe_expired(verdict.pose):
             # After a rejection the current scan becomes the reference at the predicted
             # pose: a bad prediction then costs one step, instead of misleading every
@@ -315,10 +339,8 @@ class OdometryPipeline:
                                 twist_cov, verdict.status, registration.match,
                                 scan_points=current.points, step_covariance=step_covariance)
 
-    def _deskew_again(self, current: ScanPoints, sweep_dt: float,
-                      registration: Registration, verdict: MatchVerdict,
-                      reference: ScanPoints, registrar: Registrar
-                      ) -> tuple[ScanPoints, Registration, MatchVerdict]:
+    def _deskew_again(self, current: ScanPoints, sweep_dt: float, judged: JudgedMatch
+                      ) -> tuple[ScanPoints, JudgedMatch]:
         """De-skew with the twist the match measured, and match again if it matters.
 
         The prediction's twist was a guess (zero with ``prior: none``); the match tells
@@ -330,22 +352,24 @@ class OdometryPipeline:
         - by more than :data:`DESKEW_TOLERANCE`, they are de-skewed with it and matched
         again from the first match, which is kept if the second is rejected.
         """
+        verdict, reference = judged.verdict, judged.reference
         step = se2.relative(self.pose, se2.compose(self.keyframe_pose, verdict.pose))
         measured = twist_of_step(step, sweep_dt)
         stale_reference = not self.keyframe_deskewed
         self.keyframe_deskewed = True
         reference_shift = deskew_change(self.keyframe, measured) if stale_reference else 0.0
         if max(reference_shift, deskew_change(current, measured)) <= DESKEW_TOLERANCE:
-            return current, registration, verdict
+            return current, judged
         if reference_shift > DESKEW_TOLERANCE:
             self.keyframe = reference = deskewed(self.keyframe, measured)
         again_points = deskewed(current, measured)
-        again = registrar.register(self.matcher, reference, again_points, verdict.pose,
-                                   self.config, '')
+        again = judged.registrar.register(self.matcher, reference, again_points,
+                                          verdict.pose, self.config, '')
         second = judge_match(again, verdict.pose, self.config, again_points.length_scale)
         if second.status == 'rejected':
-            return current, registration, verdict
-        return again_points, again, second
+            return current, judged
+        return again_points, judged._replace(reference=reference, registration=again,
+                                             verdict=second)
 
     def _say_why(self, registration: Registration, verdict: MatchVerdict, guess: se2.Pose,
                  stamp_ns: int) -> None:
@@ -386,7 +410,7 @@ class OdometryPipeline:
         Every match then starts from the previous pose, as scan to scan does: the
         estimate is the step, and its covariance compounds like a step's.
         """
-        view = self.map_reference.view(self.pose, self.last_stamp_ns or 0)
+        view = self.map_registrar.view(self.pose, self.last_stamp_ns or 0)
         if view is not self.keyframe:
             self.keyframe = view
             self.keyframe_prepared = False
@@ -395,73 +419,6 @@ class OdometryPipeline:
         self.keyframe_uncertainty = self.uncertainty
         self.scans_after_keyframe = 0
         return view
-
-    def _register_map(self, current: ScanPoints, guess: se2.Pose, untrusted: str
-                      ) -> tuple[ScanPoints, Registrar, Registration, MatchVerdict]:
-        """Match against the local map, with the previous scan as the second opinion.
-
-        The map is the better reference as long as it describes the scene; where it
-        does not (the scene changed, the map went wrong, the scan sees what the map
-        dropped) the previous scan still does. Both share the previous pose's frame,
-        so one guess serves both. From a trusted prediction: the match against the
-        map stands when it is clean (:func:`clean_match`); else the match against the
-        previous scan when it is; only when neither is do the global search and the
-        full registration against both run, the better of the two judged results
-        (:func:`match_rank`, the map's on a tie) being taken. A result taken from the
-        previous scan is counted as ``map_fallback``.
-        """
-        view, previous = self.keyframe, self.map_reference.previous_scan
-        local = None
-        if not untrusted:
-            local, passed = self.registrar.try_local(self.matcher, view, current, guess,
-                                                     self.config)
-            if passed:
-                registration = Registration(local)
-                verdict = judge_match(registration, guess, self.config,
-                                      current.length_scale)
-                if clean_match(registration, verdict):
-                    return view, self.registrar, registration, verdict
-            if previous is not None:
-                second, passed = self.scan_registrar.try_local(
-                    self.matcher, previous, current, guess, self.config)
-                if passed:
-                    registration = Registration(second)
-                    verdict = judge_match(registration, guess, self.config,
-                                          current.length_scale)
-                    if clean_match(registration, verdict):
-                        self.events.count('map_fallback')
-                        return previous, self.scan_registrar, registration, verdict
-        registration = self.registrar.register(self.matcher, view, current, guess,
-                                               self.config, untrusted, local)
-        verdict = judge_match(registration, guess, self.config, current.length_scale)
-        if previous is None or clean_match(registration, verdict):
-            return view, self.registrar, registration, verdict
-        second = self.scan_registrar.register(self.matcher, previous, current, guess,
-                                              self.config, untrusted)
-        second_verdict = judge_match(second, guess, self.config, current.length_scale)
-        if match_rank(second, second_verdict) > match_rank(registration, verdict):
-            self.events.count('map_fallback')
-            return previous, self.scan_registrar, second, second_verdict
-        return view, self.registrar, registration, verdict
-
-    def _update_map(self, current: ScanPoints, verdict: MatchVerdict,
-                    registration: Registration, from_map: bool) -> None:
-        """Let a trusted scan join the local map; restart the map after a rejection.
-
-        A match against the map that was accepted, not ambiguous, and fits about as
-        well as usual places the scan well enough to build on (a degenerate one too:
-        its weak direction took the prediction, and the map, featureless along it,
-        stays consistent). A rejected match restarts the map from the current scan at
-        the predicted pose.
-        """
-        self.keyframe_prepared = False  # the next match sees the map from the new pose
-        if verdict.status == 'rejected':
-            self.map_reference.restart(current, self.pose)
-            return
-        usual = self.registrar.usual
-        fits = (from_map and not registration.alternatives
-                and fits_usual(registration.match, usual.residual(), usual.inlier_ratio()))
-        self.map_reference.offer(current, self.pose, fits)
 
     def _keyframe_expired(self, keyframe_to_current: se2.Pose) -> bool:
         """Tell whether the current scan becomes the new reference."""
@@ -488,22 +445,3 @@ class OdometryPipeline:
         self.keyframe_pose = self.pose.copy()
         self.keyframe_uncertainty = self.uncertainty
         self.scans_after_keyframe = 0
-
-
-STATUS_RANK = {'rejected': 0, 'degenerate': 1, 'matched': 2}
-"""Order of the verdicts, worst first."""
-
-
-def clean_match(registration: Registration, verdict: MatchVerdict) -> bool:
-    """Tell whether a match is accepted with nothing to doubt.
-
-    Matched (not degenerate, not rejected), and neither the match from the prediction
-    failed nor did another pose fit alike.
-    """
-    return (verdict.status == 'matched' and not registration.local_failure
-            and not registration.alternatives)
-
-
-def match_rank(registration: Registration, verdict: MatchVerdict) -> tuple[int, bool]:
-    """Return how good a judged match is: its status, then whether it is clean."""
-    return STATUS_RANK[verdict.status], clean_match(registration, verdict)

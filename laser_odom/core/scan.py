@@ -92,6 +92,8 @@ class ScanPoints:
     times: np.ndarray | None = None
     measured: np.ndarray | None = None
     twist: np.ndarray | None = None
+    virtual: bool = False
+    """A view of the local map rendered as a scan, not a measured scan."""
 
     def __len__(self) -> int:
         """Return the number of points."""

@@ -1,6 +1,7 @@
 """``laser_odom_bench``: score every matcher for accuracy and speed in one table.
 
-Rows are dataset x matcher x prior x deskew setting. Datasets are the simulated ones
+Rows are dataset x matcher x prior x deskew setting x reference (``scan`` or
+``local_map``). Datasets are the simulated ones
 (generated here) plus every real dataset found under ``--data-dir``; ``--grid deskew``
 adds (or, without ``--datasets``, runs only) the simulated rotating lidars driven
 ``gentle``, ``spin``, ``aggressive`` and turning, which are left out by default.
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 from functools import lru_cache
+import itertools
 import json
 import logging
 import math
@@ -38,7 +40,8 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 
 from laser_odom.core.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    REAL_REFERENCE_NOISE, search_timing, SearchTimingRow, SIMULATED, wheel_odometry_row)
+    REAL_REFERENCE_NOISE, REFERENCE_MODES, search_timing, SearchTimingRow, SIMULATED,
+    wheel_odometry_row)
 from laser_odom.core.config import pipeline_config_from_params
 from laser_odom.core.consistency import NO_REFERENCE_NOISE, ReferenceNoise
 from laser_odom.core.datasets import (
@@ -115,6 +118,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help='comma-separated deskew values (auto, on, off): every row runs '
                              'with each, shown in the deskew column (default: auto, or the '
                              "--params-file's deskew)")
+    parser.add_argument('--reference-modes', default=None, metavar='LIST',
+                        help='comma-separated reference values (scan, local_map): every '
+                             'row matches against each, shown in the reference column '
+                             "(default: scan, or the --params-file's reference)")
     parser.add_argument('--bag', action='append', default=[], metavar='PATH',
                         help='a ROS 1 or ROS 2 bag of your own as a dataset, named after '
                              'its directory or file (repeatable): its LaserScan topic, '
@@ -254,6 +261,9 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
     deskews: list[str | None] = (
         list(dict.fromkeys(_split(args.deskew, DESKEW_MODES, 'deskew value')))
         if args.deskew is not None else [None])
+    references: list[str | None] = (
+        list(dict.fromkeys(_split(args.reference_modes, REFERENCE_MODES, 'reference value')))
+        if args.reference_modes is not None else [None])
     bags = bag_loaders(args.bag, args.reference, loaders, args.scan_topic)
     loaders.update(bags)
     names = dataset_names(args, loaders, list(bags))
@@ -270,13 +280,13 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
             for prior in priors:
                 if prior == 'odom' and not has_odometry:
                     continue
-                for deskew in deskews:
-                    label = f'{name} {matcher} {prior}' + (f' {deskew}' if deskew else '')
+                for deskew, reference in itertools.product(deskews, references):
+                    label = ' '.join(filter(None, (name, matcher, prior, deskew, reference)))
                     bar = ProgressBar(label, len(dataset.scans)) if progress else None
                     config = pipeline_config_from_params({**values, 'matcher': matcher})
                     rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
                                               config=config, deskew=deskew,
-                                              reference_noise=noise))
+                                              reference_noise=noise, reference=reference))
         if not args.no_search_table:
             searches.append(search_timing(dataset))
     return rows, searches

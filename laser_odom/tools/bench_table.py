@@ -16,11 +16,13 @@ from laser_odom.io.bag_dataset import BAG_GROUND_TRUTH
 
 COLUMNS = [
     ('dataset', 25, None, 'dataset'), ('matcher', 14, None, 'matcher'),
-    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'), ('beams', 5, None, 'beams'),
+    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'),
+    ('reference', 9, None, 'reference'), ('beams', 5, None, 'beams'),
     ('steps', 5, None, 'steps'),
     ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
     ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
-    ('ate', 7, 3, 'ATE'), ('failed', 6, None, 'failed'),
+    ('ate', 7, 3, 'ATE'), ('drift_trans', 7, 2, 'drift%'), ('drift_rot', 7, 3, 'deg/m'),
+    ('failed', 6, None, 'failed'),
     ('median_ms', 7, 2, 'med ms'), ('p95_ms', 7, 2, 'p95 ms'),
 ]
 """Table columns: row field, width, decimals (None: as is), title."""
@@ -88,17 +90,22 @@ def format_table(rows: Sequence[BenchRow]) -> str:
     """Return the rows as a fixed-width text table with units in the legend."""
     unscored = sorted({row.dataset for row in rows if row.failed is None
                        and row.matcher != WHEEL_ODOMETRY})
-    return '\n'.join(_columns(rows, COLUMNS, 4) + [
+    lengths = sorted({row.drift_length for row in rows if math.isfinite(row.drift_length)})
+    return '\n'.join(_columns(rows, COLUMNS, 5) + [
         '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
-        'alignment; failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
-        '(auto: on when the scans have a time_increment)'] + (
+        'alignment; drift: KITTI-style error per path length over segments of '
+        f'{"/".join(f"{length:g}" for length in lengths) or "50"} m of path (% and deg/m); '
+        'failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
+        '(auto: on when the scans have a time_increment); reference: matched against the '
+        'previous scan or the local map'] + (
         [f'# n/a: no reference for {", ".join(unscored)} (--bag without --reference or '
          f'{BAG_GROUND_TRUTH}): timed only'] if unscored else []))
 
 
 NEES_COLUMNS = [
     ('dataset', 25, None, 'dataset'), ('matcher', 14, None, 'matcher'),
-    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'), ('steps', 5, None, 'steps'),
+    ('prior', 17, None, 'prior'), ('deskew', 6, None, 'deskew'),
+    ('reference', 9, None, 'reference'), ('steps', 5, None, 'steps'),
     ('reference_noise_m', 6, 3, 'ref m'), ('reference_noise_deg', 7, 2, 'ref deg'),
     ('nees_1', 7, 2, 'NEES 1'), ('nees_10', 8, 2, 'NEES 10'), ('nees_100', 8, 2, 'NEES 100'),
     ('nees_integrated', 8, 2, 'NEES int'),
@@ -112,7 +119,7 @@ def format_nees_table(rows: Sequence[BenchRow]) -> str:
     return '\n'.join(
         ['# consistency of the published covariance: mean NEES = e^T (P + 2R)^-1 e, about 3 '
          'when honest (3 dof; above: too confident, below: too pessimistic)']
-        + _columns(scored, NEES_COLUMNS, 4)
+        + _columns(scored, NEES_COLUMNS, 5)
         + ['# NEES 1/10/100: relative pose over windows of at least 1, 10, 100 steps from a '
            'referenced scan to a referenced scan (every few scans on keyframe references); '
            'NEES int: the published pose relative to the first referenced scan; R = '

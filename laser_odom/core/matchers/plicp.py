@@ -83,6 +83,10 @@ class PlicpConfig(MatcherConfig):
         0.012, 'A match that did not converge or whose RMS residual exceeds this [m] is '
         'retried from the rotations where the surface directions of the two scans '
         'agree (0 = never).', 0.0, 10.0)
+    map_restart_residual: float = param(
+        0.02, 'restart_residual against a view of the local map (reference: local_map): '
+        'its lines are averages of many scans ray-cast across map cells, and even correct '
+        'matches leave larger residuals on them (0 = never).', 0.0, 10.0)
     restart_max_rotation: float = param(
         0.4, 'Restart rotations are searched this far [rad] around the guess.',
         0.0, math.pi / 2)
@@ -129,9 +133,9 @@ class PlicpMatcher(ScanMatcher):
                                       cfg.information_window)
         run = self._run(segments, reference.bearing_index, current, guess)
         iterations = run.iterations if run is not None else 0
-        if cfg.restart_residual > 0.0 and (run is None or not run.converged
-                                           or run.rms > cfg.restart_residual):
-            run, extra = self._restart(segments, reference, current, guess, run)
+        limit = cfg.map_restart_residual if reference.virtual else cfg.restart_residual
+        if limit > 0.0 and (run is None or not run.converged or run.rms > limit):
+            run, extra = self._restart(segments, reference, current, guess, run, limit)
             iterations += extra
         if run is None:
             return MatchResult.failure(guess, iterations, 0, 'too few pairs')
@@ -147,19 +151,19 @@ class PlicpMatcher(ScanMatcher):
             correspondences=len(run.residuals))
 
     def _restart(self, segments: ReferenceSegments, reference: ScanPoints,
-                 current: ScanPoints, guess: se2.Pose,
-                 first: _Run | None) -> tuple[_Run | None, int]:
+                 current: ScanPoints, guess: se2.Pose, first: _Run | None,
+                 limit: float) -> tuple[_Run | None, int]:
         """Retry from the rotations where the wall directions agree; keep the best run.
 
         PL-ICP only converges near its guess, and a prediction can be tens of degrees
         off after a jerky turn (CSM restarts from perturbed guesses for the same
         reason). Runs are ranked by convergence, then by the fraction of current points
-        within ``restart_residual`` of their line (a consensus, comparable between runs
-        unlike a trimmed RMS). Returns the best run and the iterations spent.
+        within ``limit`` (the restart residual) of their line (a consensus, comparable
+        between runs unlike a trimmed RMS). Returns the best run and the iterations spent.
         """
         cfg = self.config
         best = None if first is None else (
-            first.converged, self._consensus(segments, reference, current, first), first)
+            first.converged, self._consensus(segments, reference, current, first, limit), first)
         iterations = 0
         for rotation in rotation_candidates(reference, current, guess[2],
                                             cfg.restart_max_rotation, cfg.restart_candidates):
@@ -170,7 +174,7 @@ class PlicpMatcher(ScanMatcher):
             iterations += run.iterations
             if abs(se2.wrap_angle(run.estimate[2] - rotation)) > cfg.restart_max_rotation:
                 continue  # drifted far from its seed: not a local refinement of it
-            score = (run.converged, self._consensus(segments, reference, current, run), run)
+            score = (run.converged, self._consensus(segments, reference, current, run, limit), run)
             if best is None or score[:2] > best[:2]:
                 best = score
         return (None if best is None else best[2]), iterations
@@ -196,14 +200,14 @@ class PlicpMatcher(ScanMatcher):
         return _Run(estimate, bool(converged), int(iterations), pairs, moved, residuals)
 
     def _consensus(self, segments: ReferenceSegments, reference: ScanPoints,
-                   current: ScanPoints, run: _Run) -> float:
-        """Fraction of current points within ``restart_residual`` of their reference line."""
+                   current: ScanPoints, run: _Run, limit: float) -> float:
+        """Fraction of current points within ``limit`` of their reference line."""
         moved = se2.transform_points(run.estimate, current.points)
         index, _, line = pair_with_segments(segments, reference.bearing_index, moved,
                                             self.config.max_correspondence_distance)
         pts = moved[index]
         residuals = line[:, 0] * pts[:, 0] + line[:, 1] * pts[:, 1] - line[:, 2]
-        return float(np.count_nonzero(np.abs(residuals) < self.config.restart_residual)
+        return float(np.count_nonzero(np.abs(residuals) < limit)
                      / len(current))
 
 

@@ -1,0 +1,103 @@
+"""The pipeline with ``reference: local_map``: less drift, and everything scan mode has.
+
+Simulated worlds with ground truth; the real logs are in ``test_real_data.py``.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from laser_odom.core import se2
+from laser_odom.core.config import PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.metrics import evaluate
+from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.runner import run_pipeline
+from laser_odom.core.simulation import simulate
+
+MATCHERS = ('plicp', 'nicp', 'imls')
+
+
+def config(matcher: str, reference: str = 'local_map', **motion) -> PipelineConfig:
+    """Return the default configuration of ``matcher`` matching against ``reference``."""
+    settings = PipelineConfig(matcher=matcher)
+    settings.local_map.reference = reference
+    for name, value in motion.items():
+        setattr(settings.motion, name, value)
+    return settings
+
+
+def ate(run, matcher: str, reference: str, **motion) -> tuple[float, int]:
+    """Return the ATE [m] and failed steps of a run of the pipeline over ``run``."""
+    pipeline = OdometryPipeline(config(matcher, reference, **motion),
+                                events=EventLog(lambda message: None))
+    errors = evaluate(run_pipeline(pipeline, run.scans).trajectory, run.reference)
+    return errors.ate_rms, errors.failed_steps
+
+
+@pytest.fixture(scope='module')
+def office():
+    """Twenty seconds in the office world."""
+    return simulate('office', duration=20.0, seed=3)
+
+
+@pytest.fixture(scope='module')
+def corridors():
+    """100 s in the corridor world and in the featureless corridor, three seeds each."""
+    return {(world, seed): simulate(world, duration=100.0, seed=seed)
+            for world in ('corridor', 'featureless_corridor') for seed in (1, 2, 3)}
+
+
+@pytest.mark.parametrize('world', ['corridor', 'featureless_corridor'])
+@pytest.mark.parametrize('matcher', MATCHERS)
+def test_map_mode_halves_the_error_in_corridors(corridors, matcher, world):
+    scan, mapped = (np.mean([ate(corridors[world, seed], matcher, reference)[0]
+                             for seed in (1, 2, 3)]) for reference in ('scan', 'local_map'))
+    assert mapped <= 0.5 * scan, (matcher, world, scan, mapped)
+
+
+@pytest.mark.parametrize('matcher', MATCHERS + ('icp',))
+def test_map_mode_tracks_the_office(office, matcher):
+    (scan, scan_failed), (mapped, map_failed) = (
+        ate(office, matcher, reference) for reference in ('scan', 'local_map'))
+    assert map_failed == 0 and scan_failed == 0
+    assert mapped <= max(scan, 0.005), (matcher, scan, mapped)
+
+
+def test_reset_clears_the_map_and_starts_from_the_given_pose(office):
+    pipeline = OdometryPipeline(config('nicp'), events=EventLog(lambda message: None))
+    for scan in office.scans[:50]:
+        pipeline.process(scan)
+    map_reference = pipeline.map_registrar.map
+    assert len(map_reference.map) > 0 and map_reference.joined > 1
+    start = se2.pose(10.0, -2.0, 1.0)
+    pipeline.reset(start)
+    assert map_reference.empty and map_reference.previous_scan is None
+    first = pipeline.process(office.scans[50])
+    assert first.status == 'initialized' and np.allclose(first.pose, start)
+    # From there the odometry goes on: the truth's motion, seen from the new start.
+    for scan in office.scans[51:80]:
+        last = pipeline.process(scan)
+    truth = office.reference.poses
+    moved = se2.relative(truth[50], truth[79])
+    assert np.allclose(se2.relative(start, last.pose), moved, atol=0.01)
+
+
+def test_configure_switches_between_scan_and_map_and_keeps_the_pose(office):
+    pipeline = OdometryPipeline(config('plicp', 'scan'), events=EventLog(lambda message: None))
+    for scan in office.scans[:40]:
+        pipeline.process(scan)
+    assert pipeline.map_registrar is None
+    before = pipeline.pose.copy()
+    pipeline.configure(config('plicp', 'local_map'))
+    assert pipeline.map_registrar is not None and np.allclose(pipeline.pose, before)
+    for scan in office.scans[40:100]:
+        estimate = pipeline.process(scan)
+        assert estimate.status == 'matched'  # the step across the switch is matched too
+    truth = office.reference.poses
+    error = se2.relative(se2.relative(truth[39], truth[99]), se2.relative(before, estimate.pose))
+    assert math.hypot(error[0], error[1]) < 0.005  # scan to scan: 3 cm in these 60 scans
+    pipeline.configure(config('plicp', 'scan'))
+    assert pipeline.map_registrar is None
+    assert pipeline.process(office.scans[100]).status == 'matched'
