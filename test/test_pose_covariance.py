@@ -3,7 +3,8 @@
 NEES (e^T P^-1 e, 3 dof: about 3 when honest) of relative poses over 1, 10 and 100
 steps and of the integrated pose the pipeline publishes, against the simulator's
 truth, in two worlds with two noise seeds each (averaged per world), keyframes off and
-on. Far below 3 fails too: a covariance too pessimistic to be useful.
+on, and matching against the local map. Far below 3 fails too: a covariance too
+pessimistic to be useful.
 """
 
 from dataclasses import dataclass, replace
@@ -51,15 +52,19 @@ def runs():
             for world, seeds in SEEDS.items() for seed in seeds}
 
 
-def record(run, matcher: str, keyframes: KeyframeConfig | None = None) -> Recorded:
+def record(run, matcher: str, keyframes: KeyframeConfig | None = None,
+           reference: str = 'scan') -> Recorded:
     """Run the pipeline over the simulated scans; the simulator's truth is the reference."""
     config = PipelineConfig(matcher=matcher)
     if keyframes is not None:
         config = replace(config, keyframes=keyframes)
+    config.local_map.reference = reference
     pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
     result = run_pipeline(pipeline, run.scans)
     assert len(result.trajectory) == len(run.scans)
-    return Recorded(result, run.reference, StepErrorModel.of(default_config(matcher)))
+    matcher_config = default_config(matcher)
+    return Recorded(result, run.reference, StepErrorModel.of_map(matcher_config)
+                    if reference == 'local_map' else StepErrorModel.of(matcher_config))
 
 
 def integrated_nees(rec: Recorded) -> float:
@@ -71,24 +76,28 @@ def integrated_nees(rec: Recorded) -> float:
 
 @pytest.fixture(scope='module')
 def recordings(runs):
-    """Each matcher over every run, keyframes off (the default)."""
+    """Each matcher over every run, keyframes off (the default), against either reference."""
     cache = {}
 
-    def get(matcher: str, world: str) -> list[Recorded]:
+    def get(matcher: str, world: str, reference: str = 'scan') -> list[Recorded]:
         for seed in SEEDS[world]:
-            if (matcher, seed) not in cache:
-                cache[matcher, seed] = record(runs[world, seed], matcher)
-        return [cache[matcher, seed] for seed in SEEDS[world]]
+            if (matcher, seed, reference) not in cache:
+                cache[matcher, seed, reference] = record(runs[world, seed], matcher,
+                                                         reference=reference)
+        return [cache[matcher, seed, reference] for seed in SEEDS[world]]
     return get
 
 
+@pytest.mark.parametrize('reference', ['scan', 'local_map'])
 @pytest.mark.parametrize('world', sorted(SEEDS))
 @pytest.mark.parametrize('matcher', MATCHERS)
-def test_relative_and_integrated_pose_nees_are_about_three(recordings, matcher, world):
-    each = [r.figures() for r in recordings(matcher, world)]
+def test_relative_and_integrated_pose_nees_are_about_three(
+        recordings, matcher, world, reference):
+    each = [r.figures() for r in recordings(matcher, world, reference)]
     figures = {f'{n} steps': np.mean([f.windows[n] for f in each]) for n in WINDOWS}
     figures['integrated'] = np.mean([f.integrated for f in each])
-    assert all(LOW <= value <= HIGH for value in figures.values()), (matcher, world, figures)
+    assert all(LOW <= value <= HIGH for value in figures.values()), (
+        matcher, world, reference, figures)
 
 
 @pytest.mark.parametrize('matcher', MATCHERS)

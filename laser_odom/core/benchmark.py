@@ -303,8 +303,9 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
     if prior == 'odom':
         feed = PriorFeed('odom', PriorConfig(), odometry=dataset.odometry)
     result = run_pipeline(pipeline, dataset.scans, priors=feed, progress=progress)
-    consistency = _consistency(result, dataset.reference,
-                               StepErrorModel.of(pipeline.matcher.config), reference_noise)
+    model = (StepErrorModel.of_map(pipeline.matcher.config) if pipeline.map_registrar is not None
+             else StepErrorModel.of(pipeline.matcher.config))
+    consistency = _consistency(result, dataset.reference, model, reference_noise)
     return _row(dataset, matcher, prior, config.scan.deskew, result.trajectory,
                 result.processing_times, result.counters['rejected'], consistency,
                 reference_noise, config.local_map.reference)

@@ -300,18 +300,12 @@ class OdometryPipeline:
             current, judged = self._deskew_again(current, sweep_dt, judged)
         registration, verdict = judged.registration, judged.verdict
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
-        # Compounding with correlated step errors (shared scans, bias): pose_uncertainty.
-        # Only a good match's error is scan noise that the next match cancels; the
-        # covariance of a degenerate match (no information along a corridor) or of a
-        # rejected one (the prediction) is ignorance, which stays: those compound white.
-        model = (StepErrorModel.of(self.matcher.config) if verdict.status == 'matched'
-                 else StepErrorModel())
+        step_covariance, model = self._error_model(judged)
         self.scans_after_keyframe += 1
         self.uncertainty = self.keyframe_uncertainty.propagate(
-            self.keyframe_pose, verdict.pose, verdict.covariance, model,
+            self.keyframe_pose, verdict.pose, step_covariance, model,
             self.scans_after_keyframe)
         step = se2.relative(self.pose, new_pose)
-        step_covariance = verdict.covariance
         self.pose, self.pose_covariance = new_pose, self.uncertainty.pose_covariance
         if verdict.status == 'rejected':
             # The prediction may be what was wrong: keeping its velocity would make every
@@ -338,6 +332,26 @@ class OdometryPipeline:
         return OdometryEstimate(stamp_ns, new_pose, self.pose_covariance.copy(), twist,
                                 twist_cov, verdict.status, registration.match,
                                 scan_points=current.points, step_covariance=step_covariance)
+
+    def _error_model(self, judged: JudgedMatch) -> tuple[np.ndarray, StepErrorModel]:
+        """Return the step covariance and how its error compounds (:mod:`.pose_uncertainty`).
+
+        Only a good match's error is noise that the next match cancels (the shared scan,
+        or the map both match against); the covariance of a degenerate match (no
+        information along a corridor) or of a rejected one (the prediction) is
+        ignorance, which stays: those compound white. A match against the local map
+        has the matcher's ``map_covariance_scale`` and, when good, shares all but the
+        white rest of its error with the next (``map_covariance_shared``).
+        """
+        verdict, matcher_config = judged.verdict, self.matcher.config
+        if verdict.status == 'rejected':
+            return verdict.covariance, StepErrorModel()
+        if not judged.from_map:
+            return verdict.covariance, (StepErrorModel.of(matcher_config)
+                                        if verdict.status == 'matched' else StepErrorModel())
+        covariance = verdict.covariance * matcher_config.map_covariance_scale
+        return covariance, (StepErrorModel.of_map(matcher_config)
+                            if verdict.status == 'matched' else StepErrorModel())
 
     def _deskew_again(self, current: ScanPoints, sweep_dt: float, judged: JudgedMatch
                       ) -> tuple[ScanPoints, JudgedMatch]:

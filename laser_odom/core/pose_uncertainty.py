@@ -95,6 +95,15 @@ class StepErrorModel:
         return cls(config.covariance_shared_scan, config.covariance_bias,
                    config.covariance_bias_correlation, config.covariance_baseline_falloff)
 
+    @classmethod
+    def of_map(cls, config: object) -> StepErrorModel:
+        """Return the model of matches against the local map a matcher configuration declares.
+
+        Consecutive matches against the map share the map's error, which does not add
+        up (``map_covariance_shared``); what the map does not share is white.
+        """
+        return cls(config.map_covariance_shared)
+
     def shares(self, scans_apart: int = 1) -> tuple[float, float]:
         """Return the shared-scan and bias shares of a match spanning ``scans_apart`` scans.
 

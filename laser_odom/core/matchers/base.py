@@ -52,6 +52,14 @@ class MatcherConfig:
         'n^falloff and the noise of the scans takes the rest (icp, plicp: 1, their pairing '
         'errors fade as the scans move apart; nicp, imls: 0, a surface model errs alike).',
         0.0, 3.0)
+    map_covariance_scale: float = param(
+        1.6, 'reference: local_map - further factor on the covariance of a match against the '
+        "map (the view's surfaces are averages, not one scan's points; calibrated per matcher "
+        'on simulated runs).', 0.01, 1000.0)
+    map_covariance_shared: float = param(
+        0.9997, "reference: local_map - share of a map match's covariance that is the error "
+        'of the map itself: consecutive matches against the map share it, so it does not add '
+        'up; the rest adds up as white noise.', 0.0, 1.0)
 
 
 @dataclass

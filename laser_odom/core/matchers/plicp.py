@@ -56,6 +56,7 @@ class PlicpConfig(MatcherConfig):
                                                 0.98)
     covariance_baseline_falloff: float = retune(MatcherConfig, 'covariance_baseline_falloff',
                                                 1.0)
+    map_covariance_scale: float = retune(MatcherConfig, 'map_covariance_scale', 1.5)
     max_beam_gap: int = param(
         3, 'Reference points whose beam indices differ by more than this do not form '
         'a segment.', 1, 1000)
