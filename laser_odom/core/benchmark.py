@@ -15,7 +15,7 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.config import (
-    GlobalSearchConfig, LocalMapConfig, MountingConfig, PipelineConfig, ScanConfig)
+    GlobalSearchConfig, MountingConfig, PipelineConfig, REFERENCES, ScanConfig)
 from laser_odom.core.consistency import (
     Consistency, NO_REFERENCE_NOISE, ReferenceNoise, run_consistency, WINDOWS)
 from laser_odom.core.events import EventLog
@@ -48,7 +48,7 @@ NOT_APPLICABLE = '-'
 DESKEW_MODES: tuple[str, ...] = tuple(param_info(ScanConfig, 'deskew').choices or ())
 """The pipeline's ``deskew`` values (``laser_odom_bench --deskew``)."""
 
-REFERENCE_MODES: tuple[str, ...] = tuple(param_info(LocalMapConfig, 'reference').choices or ())
+REFERENCE_MODES: tuple[str, ...] = REFERENCES
 """The pipeline's ``reference`` values (``laser_odom_bench --reference-modes``)."""
 
 WARMUP_SCANS = 10

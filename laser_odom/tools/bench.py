@@ -328,8 +328,11 @@ def main_live(args: argparse.Namespace) -> int:
         matchers = _split(args.matchers, matcher_names(), 'matcher')
         if args.rate <= 0 or args.beams < 2 or args.duration <= 0:
             raise ValueError('--rate and --duration must be positive, --beams at least 2')
+        references = (_split(args.reference_modes, REFERENCE_MODES, 'reference value')
+                      if args.reference_modes is not None else ['scan'])
         from laser_odom.tools.bench_live import format_live, run_live
-        rows = run_live(matchers, args.beams, args.rate, args.duration)
+        rows = run_live(matchers, args.beams, args.rate, args.duration,
+                        references=references)
     except (ValueError, RuntimeError) as err:
         print(f'laser_odom_bench: error: {err}', file=sys.stderr)
         return 2

@@ -78,6 +78,8 @@ class LiveRow:
     process_median_ms: float = math.nan
     ready_s: float = math.nan
     first_ms: float = math.nan
+    reference: str = 'scan'
+    """The node's ``reference`` setting (``scan`` or ``local_map``)."""
 
 
 def process_cpu_seconds(pid: int) -> float:
@@ -93,8 +95,8 @@ def process_cpu_seconds(pid: int) -> float:
 class LiveSession:
     """One node process and a publisher/subscriber peer on a private domain."""
 
-    def __init__(self, matcher: str, domain_id: int) -> None:
-        """Start the node with ``matcher`` and the peer."""
+    def __init__(self, matcher: str, domain_id: int, reference: str = 'scan') -> None:
+        """Start the node with ``matcher`` matching against ``reference``, and the peer."""
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
         root = str(Path(__file__).resolve().parents[2])
         env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH', '')) if p)
@@ -102,7 +104,8 @@ class LiveSession:
         self.started = time.monotonic()
         self.process = subprocess.Popen(
             [sys.executable, '-m', 'laser_odom.ros.node', '--ros-args', '-p',
-             f'matcher:={matcher}', '-p', 'publish_tf:=false'],
+             f'matcher:={matcher}', '-p', f'reference:={reference}', '-p',
+             'publish_tf:=false'],
             env=env, stdout=self.log, stderr=subprocess.STDOUT)
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id,
@@ -145,9 +148,9 @@ class LiveSession:
         rclpy.try_shutdown(context=self.context)
 
 
-def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
+def run_matcher(matcher: str, messages: list, rate: float, reference: str = 'scan') -> LiveRow:
     """Stream ``messages`` at ``rate`` Hz to a fresh node running ``matcher``."""
-    session = LiveSession(matcher, random.randint(101, 230))
+    session = LiveSession(matcher, random.randint(101, 230), reference)
     try:
         if not session.spin_until(lambda: session.publisher.get_subscription_count() > 0
                                   and session.node.count_publishers('odom') > 0,
@@ -184,30 +187,32 @@ def run_matcher(matcher: str, messages: list, rate: float) -> LiveRow:
             int(diag.get(BUSY_KEY, '0')), int(diag.get(DROPPED_KEY, '0')), cpu_percent,
             float(diag.get('processing time median [ms]', 'nan')), ready_s,
             (session.received[first] - sent[first]) * 1e3 if first in session.received
-            else math.nan)
+            else math.nan, reference)
     finally:
         session.close()
 
 
 def run_live(matchers: Sequence[str], beams: int, rate: float, duration: float,
-             fov_deg: float = 270.0) -> list[LiveRow]:
-    """Run every matcher on the same simulated stream and return the rows."""
+             fov_deg: float = 270.0, references: Sequence[str] = ('scan',)) -> list[LiveRow]:
+    """Run every matcher against every reference on one simulated stream; return the rows."""
     laser = LaserModel(beams=beams, fov=math.radians(fov_deg), rate=rate, max_range=30.0)
     dataset = simulate('office', duration=duration, laser=laser, seed=7)
     messages = [(scan.stamp_ns, scan_to_msg(scan)) for scan in dataset.scans]
-    return [run_matcher(matcher, messages, rate) for matcher in matchers]
+    return [run_matcher(matcher, messages, rate, reference)
+            for matcher in matchers for reference in references]
 
 
 def format_live(rows: Sequence[LiveRow], beams: int, rate: float, duration: float) -> str:
     """Return the live benchmark table."""
     lines = [f'# live: {beams} beams at {rate:g} Hz for {duration:g} s, published to a '
              'fresh laser_odom_node per matcher',
-             f'{"matcher":<8} {"sent":>6} {"processed":>9} {"no answer":>9} {"busy":>6} '
-             f'{"dropped":>7} {"node med ms":>11} {"node p95 ms":>11} {"e2e med ms":>10} '
+             f'{"matcher":<8} {"reference":<9} {"sent":>6} {"processed":>9} {"no answer":>9} '
+             f'{"busy":>6} {"dropped":>7} {"node med ms":>11} {"node p95 ms":>11} {"e2e med ms":>10} '
              f'{"e2e p95 ms":>10} {"proc ms":>7} {"CPU %":>6} {"ready s":>7} '
              f'{"first ms":>8}']
     for r in rows:
-        lines.append(f'{r.matcher:<8} {r.sent:>6} {r.processed:>9} {r.skipped:>9} '
+        lines.append(f'{r.matcher:<8} {r.reference:<9} {r.sent:>6} {r.processed:>9} '
+                     f'{r.skipped:>9} '
                      f'{r.busy:>6} {r.dropped:>7} '
                      f'{r.node_median_ms:>11.2f} {r.node_p95_ms:>11.2f} '
                      f'{r.e2e_median_ms:>10.2f} {r.e2e_p95_ms:>10.2f} '

@@ -19,7 +19,7 @@ from typing import Callable, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from laser_odom.core.config import DEFAULT_MATCHER, PipelineConfig
+from laser_odom.core.config import DEFAULT_MATCHER, PipelineConfig, REFERENCES
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.pipeline import OdometryPipeline
@@ -98,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
                    '(default: 100000)')
     p.add_argument('--matcher', default=DEFAULT_MATCHER, choices=matcher_names(),
                    help=f'scan matcher (default: {DEFAULT_MATCHER})')
+    p.add_argument('--reference', default='scan', choices=REFERENCES,
+                   help='what each scan is matched against: the previous scan or the local '
+                   'map (default: scan)')
     p.add_argument('--world', default='office', choices=world_names(),
                    help='simulated world the scans are rendered in (default: office)')
     p.add_argument('--beams', type=_integer(2, 100_000), default=360, metavar='N',
@@ -125,13 +128,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def soak(args: argparse.Namespace) -> int:
     """Run the soak described by parsed arguments; return 0, or 1 if memory grew."""
-    pipeline = OdometryPipeline(PipelineConfig(matcher=args.matcher),
-                                events=EventLog(lambda message: None))
+    config = PipelineConfig(matcher=args.matcher)
+    config.local_map.reference = args.reference
+    pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
     laser = LaserModel(beams=args.beams)
     baseline = None
     started = time.monotonic()
-    print(f'# soak: {args.scans} scans, matcher {args.matcher}, world {args.world}, '
-          f'{args.beams} beams')
+    print(f'# soak: {args.scans} scans, matcher {args.matcher}, reference {args.reference}, '
+          f'world {args.world}, {args.beams} beams')
     print(f'{"scans":>8} {"RSS MiB":>9} {"growth":>8} {"elapsed s":>10}')
     for count, scan in enumerate(scan_stream(args.world, args.scans, laser, 0), start=1):
         pipeline.process(scan)
