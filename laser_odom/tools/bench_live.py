@@ -207,8 +207,8 @@ def format_live(rows: Sequence[LiveRow], beams: int, rate: float, duration: floa
     lines = [f'# live: {beams} beams at {rate:g} Hz for {duration:g} s, published to a '
              'fresh laser_odom_node per matcher',
              f'{"matcher":<8} {"reference":<9} {"sent":>6} {"processed":>9} {"no answer":>9} '
-             f'{"busy":>6} {"dropped":>7} {"node med ms":>11} {"node p95 ms":>11} {"e2e med ms":>10} '
-             f'{"e2e p95 ms":>10} {"proc ms":>7} {"CPU %":>6} {"ready s":>7} '
+             f'{"busy":>6} {"dropped":>7} {"node med ms":>11} {"node p95 ms":>11} '
+             f'{"e2e med ms":>10} {"e2e p95 ms":>10} {"proc ms":>7} {"CPU %":>6} {"ready s":>7} '
              f'{"first ms":>8}']
     for r in rows:
         lines.append(f'{r.matcher:<8} {r.reference:<9} {r.sent:>6} {r.processed:>9} '
