@@ -62,7 +62,8 @@ mutation: $(STAMP)
 # quiet machine). Commit the JSON, then run make docs.
 figures: $(STAMP)
 	$(BIN)/laser_odom_bench --datasets fr079,mit-csail,intel,sim-office-360,sim-office-1081 \
-	    --priors constant_velocity --no-search-table --quiet --json test/figures/benchmark.json
+	    --priors constant_velocity --reference-modes scan,local_map --no-search-table --quiet \
+	    --json test/figures/benchmark.json
 
 clean: clean-kernels
 	rm -rf $(VENV) $(OUT) build install log *.egg-info

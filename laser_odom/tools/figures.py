@@ -52,18 +52,23 @@ def load_figures(path: Path = FIGURES_JSON) -> dict[str, Any]:
     return payload
 
 
-def figure_rows(payload: Mapping[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
-    """Return the constant-velocity rows by (dataset, matcher)."""
+def figure_rows(payload: Mapping[str, Any], reference: str = 'scan'
+                ) -> dict[tuple[str, str], dict[str, Any]]:
+    """Return the constant-velocity rows matched against ``reference`` by (dataset, matcher).
+
+    Rows written before the ``reference`` key existed were matched scan to scan.
+    """
     return {(row['dataset'], row['matcher']): row for row in payload['rows']
-            if row.get('prior') == PRIOR}
+            if row.get('prior') == PRIOR and row.get('reference', 'scan') == reference}
 
 
-def figure(payload: Mapping[str, Any], dataset: str, matcher: str) -> dict[str, Any]:
+def figure(payload: Mapping[str, Any], dataset: str, matcher: str,
+           reference: str = 'scan') -> dict[str, Any]:
     """Return the row of ``matcher`` on ``dataset``; say which is missing if it is."""
-    row = figure_rows(payload).get((dataset, matcher))
+    row = figure_rows(payload, reference).get((dataset, matcher))
     if row is None:
         raise FiguresError(f'the benchmark result has no {matcher} row on {dataset} '
-                           f'({PRIOR} prior): run make figures')
+                           f'({PRIOR} prior, reference {reference}): run make figures')
     return row
 
 

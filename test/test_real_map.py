@@ -1,0 +1,74 @@
+"""Real robot logs matched against the local map: less drift than scan to scan.
+
+Each of ``plicp``, ``nicp`` and ``imls`` runs over fr079, mit-csail and intel at full
+rate with the constant-velocity prior and ``reference: local_map``, and is compared
+with its own documented scan-to-scan figures (test/figures/benchmark.json, which
+``test_real_data.py`` holds the scan mode to): drift over 50 m segments at most 0.6x,
+ATE below the best peer measured (fr079 2.08 m, CSM's PL-ICP; mit-csail 0.88 m,
+small_gicp) and on intel at most 0.6x scan mode's, and no failed step added. The map
+mode is also held to its own documented figures. Skipped when ../shared/data is absent.
+"""
+
+import pytest
+
+from laser_odom.core.benchmark import benchmark_run
+from laser_odom.tools.figures import figure, load_figures, regression
+
+BEST_PEER_ATE = {'fr079': 2.08, 'mit-csail': 0.88}
+"""ATE [m] of the best peer measured on these logs (issue 28); on intel the bar is 0.6x
+the matcher's own scan-mode ATE."""
+
+DRIFT_RATIO = 0.6
+ATE_RATIO = 0.6
+
+SHORT_OF_TARGET = {
+    ('plicp', 'intel'): 'PL-ICP still slips along two of intel\'s corridors (t = 364-391 s and '
+                        '676-687 s) against the map as against the previous scan: '
+                        'ATE 2.0 m (0.70x), drift 3.3 % (0.73x), 4 failed steps (scan: 3)',
+    ('nicp', 'mit-csail'): 'drift 0.72 % (0.86x); the three matchers disagree with each '
+                           'other by 0.47-0.63 % over 50 m, and with the reference by '
+                           '0.66-0.81 %: the keyframe reference\'s own heading error is '
+                           'about 0.55-0.65 % there, a floor the ratio cannot go below',
+    ('imls', 'mit-csail'): 'drift 0.66 % (0.63x), the same reference floor',
+}
+"""Where the map mode falls short of issue 28's targets, and why (strict: a fix shows)."""
+
+CASES = [pytest.param(matcher, dataset, marks=pytest.mark.xfail(
+    reason=SHORT_OF_TARGET[matcher, dataset], strict=True))
+    if (matcher, dataset) in SHORT_OF_TARGET else (matcher, dataset)
+    for matcher in ('plicp', 'nicp', 'imls') for dataset in ('fr079', 'mit-csail', 'intel')]
+
+
+@pytest.fixture(scope='module')
+def map_rows(real_log):
+    """The map-mode rows, run once per matcher and log."""
+    cache = {}
+
+    def get(matcher: str, dataset: str):
+        if (matcher, dataset) not in cache:
+            cache[matcher, dataset] = benchmark_run(real_log(dataset), matcher,
+                                                    'constant_velocity', reference='local_map')
+        return cache[matcher, dataset]
+    return get
+
+
+@pytest.mark.parametrize('matcher, dataset', CASES)
+def test_the_local_map_drifts_less_than_scan_to_scan(map_rows, matcher, dataset):
+    row = map_rows(matcher, dataset)
+    scan = figure(load_figures(), dataset, matcher)
+    figures = (f'{matcher} on {dataset}: local map drift {row.drift_trans:.2f} % / '
+               f'{row.drift_rot:.3f} deg/m, ATE {row.ate:.3f} m, failed {row.failed}; scan '
+               f'{scan["drift_trans"]:.2f} % / {scan["drift_rot"]:.3f} deg/m, ATE '
+               f'{scan["ate"]:.3f} m, failed {scan["failed"]}')
+    assert row.reference == 'local_map' and row.drift_length == 50.0, figures
+    assert row.drift_trans <= DRIFT_RATIO * scan['drift_trans'], figures
+    assert row.ate < BEST_PEER_ATE.get(dataset, ATE_RATIO * scan['ate']), figures
+    assert row.failed <= scan['failed'], figures
+
+
+@pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
+@pytest.mark.parametrize('dataset', ['fr079', 'mit-csail', 'intel'])
+def test_the_local_map_meets_its_documented_figures(map_rows, matcher, dataset):
+    row = map_rows(matcher, dataset)
+    documented = figure(load_figures(), dataset, matcher, reference='local_map')
+    assert regression(row.as_dict(), documented) == [], (matcher, dataset)
