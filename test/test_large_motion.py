@@ -89,6 +89,23 @@ def test_scan_gap_drops_the_prior_says_so_and_the_search_recovers():
     assert any('3.00 s between the scans' in m and 'max_scan_gap (1 s)' in m for m in said)
 
 
+def test_wheel_odometry_over_a_scan_gap_is_a_trusted_prediction():
+    """Issue 30.14: with prior odom the measured step spans the 3 s gap: no search needed."""
+    world = get_world('office')
+    start = world.path.poses_at(np.array([8.0]))[0]
+    scans = scans_apart(world, start, STEP, seed=8)
+    scans[1].stamp_ns = scans[0].stamp_ns + 3_000_000_000
+    said = []
+    pipeline = quiet_pipeline('nicp', 'recover', prior='odom', said=said)
+    pipeline.process(scans[0])
+    pipeline.untrusted = ''
+    estimate = pipeline.process(scans[1], prior_step=se2.pose(0.78, 0.02, math.radians(24.0)))
+    assert estimate.status == 'matched' and not said
+    assert pipeline.counters['scan_gap'] == 0 and pipeline.counters['search_gap'] == 0
+    error = se2.relative(STEP, estimate.pose)
+    assert np.hypot(error[0], error[1]) < 0.02 and abs(error[2]) < math.radians(0.5)
+
+
 def test_rejection_says_the_correction_against_the_gate():
     world = get_world('office')
     start = world.path.poses_at(np.array([8.0]))[0]
