@@ -67,9 +67,9 @@ def test_low_coverage_reference_fails_but_writes_outputs(small_bag, tmp_path, ca
     captured = capsys.readouterr()
     assert code == 2
     assert captured.err.strip().splitlines() == [
-        f'laser_odom_replay: error: reference {reference} covers only 0 % of the run in time '
-        '(2 of 100 poses paired; poses more than 2 s apart leave the time between them '
-        'uncovered) - below --min-coverage 0.5']
+        f'laser_odom_replay: error: reference {reference}: only 2 % of its poses within the '
+        'run pair with a scan (2 of 100 scans paired): another clock or another run? - below '
+        '--min-coverage 0.5']
     assert 'ATE' not in captured.out  # an ATE over two poses would say nothing
     assert len(read_tum(tum)) == 100  # the asked-for output is written anyway
 

@@ -266,7 +266,7 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
         'no scans': ([str(no_scans)], 'no LaserScan topic'),
         'no overlap': ([bag, '--reference', str(far)], 'does not overlap'),
         'little overlap': ([bag, '--reference', str(half)],
-                           'tune0/bag in time (40 of 100 scans paired'),
+                           'it covers only 39 % of the run in time (40 of 100 poses'),
         'odom topic': ([bag, '--odom-topic', 'odm'], 'no topic /odm in the bag'),
         'empty range': ([bag, '--space', str(empty)], 'empty range'),
         'postgres': ([bag, '--storage', 'postgresql://nobody@127.0.0.1:1/x'],

@@ -15,7 +15,7 @@ from typing import Callable, Collection, Sequence
 
 import numpy as np
 
-from laser_odom.core.coverage import percent, reference_coverage
+from laser_odom.core.coverage import reference_coverage
 from laser_odom.core.trajectory import Dataset, RecordedBag, Trajectory
 from laser_odom.io.bag_reader import BagReader, IMU, LASER_SCAN, ODOMETRY
 from laser_odom.io.tum import read_tum, TumFormatError
@@ -123,11 +123,9 @@ def check_overlap(bag: RecordedBag, name: str, min_coverage: float = 0.0) -> Non
         raise ValueError(f'reference {bag.reference_source} does not overlap {name} in time: '
                          f'it pairs with {coverage.paired} of {len(stamps)} scans (stamps '
                          'within 10 ms)')
-    if coverage.span < min_coverage:
-        raise ValueError(f'reference {bag.reference_source} covers only {percent(coverage.span)} '
-                         f'of {name} in time ({coverage.paired} of {len(stamps)} scans '
-                         f'paired; poses more than {coverage.hole:g} s apart leave the time '
-                         f'between them uncovered), less than --min-coverage {min_coverage:g}')
+    if coverage.fraction < min_coverage:
+        raise ValueError(f'reference {bag.reference_source} of {name}: '
+                         f'{coverage.shortfall()}, less than --min-coverage {min_coverage:g}')
 
 
 def load_bag_dataset(path: str, name: str, reference: str | None = None,

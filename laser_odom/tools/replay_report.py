@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from laser_odom.core.coverage import percent, reference_coverage
+from laser_odom.core.coverage import reference_coverage
 from laser_odom.core.metrics import distance_travelled, evaluate
 from laser_odom.core.pipeline import OUTCOMES
 from laser_odom.core.trajectory import Trajectory
@@ -231,11 +231,9 @@ def check_coverage(record: ReplayRecord, reference_path: Any, reference: Traject
     coverage = reference_coverage(np.asarray(record.stamps_ns, dtype=np.int64), reference)
     if coverage.total == 0 and min_coverage > 0.0:
         raise ReplayError(f'no estimated poses to compare with reference {reference_path}')
-    if coverage.span < min_coverage:
-        raise ReplayError(f'reference {reference_path} covers only {percent(coverage.span)} of '
-                          f'the run in time ({coverage.paired} of {coverage.total} poses '
-                          f'paired; poses more than {coverage.hole:g} s apart leave the time '
-                          f'between them uncovered) - below --min-coverage {min_coverage:g}')
+    if coverage.fraction < min_coverage:
+        raise ReplayError(f'reference {reference_path}: {coverage.shortfall()} - below '
+                          f'--min-coverage {min_coverage:g}')
     return f'reference {reference_path}: {coverage.describe()}'
 
 
