@@ -29,8 +29,8 @@ HEADER = """\
 #   ros2 run laser_odom laser_odom_node --ros-args --params-file config/default.yaml
 #
 # Parameters marked (read-only) are fixed at start-up; all others can be changed
-# while running (ros2 param set /laser_odom <name> <value>) and take effect at the
-# next scan. Matcher settings are grouped per matcher (<matcher>.<name>); only the
+# while running (laser_odom_ctl set <name> <value>, or ros2 param set /laser_odom <name>
+# <value>) and take effect at the next scan. Matcher settings are grouped per matcher (<matcher>.<name>); only the
 # group of the selected matcher is used, but all are validated.
 # "/**:" applies the file under any node name and namespace. Unknown names are
 # warned about; an integer is taken where a floating-point number is declared.
