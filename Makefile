@@ -32,7 +32,7 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py package.xml
 venv: $(STAMP)
 
 test: $(STAMP)
-	$(Q)$(BIN)/python -m pytest -q -n 2 --dist load test
+	$(Q)$(BIN)/python -m pytest -q -n 2 --dist worksteal test
 
 lint: $(STAMP)
 	$(Q)$(BIN)/python -m flake8 laser_odom test setup.py
