@@ -202,8 +202,12 @@ class OdometryClient:
     def _on_pose(self, msg: PoseStamped) -> None:
         self.pose.setdefault(stamp_to_ns(msg.header.stamp), []).append(msg)
 
-    def wait_ready(self, timeout: float = 30.0) -> bool:
-        """Wait until the node's scan subscription and output publishers are discovered."""
+    def wait_ready(self, timeout: float = STARTUP_TIMEOUT) -> bool:
+        """Wait until the node's scan subscription and output publishers are discovered.
+
+        The node subscribes once its kernels are loaded, which may take long on a busy
+        machine: the deadline is generous, the wait ends as soon as it is there.
+        """
         node = self.peer.node
         return self.peer.spin_until(
             lambda: (self.scan_pub.get_subscription_count() >= 1

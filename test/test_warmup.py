@@ -13,7 +13,7 @@ import subprocess
 import sys
 
 from laser_odom.core import warmup
-from laser_odom.ros.node import warm_up_note
+from laser_odom.ros.node import WARM_UP_NOTE_SECONDS
 from laser_odom.tools.warmup import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,11 +72,11 @@ def test_the_start_says_compiled_only_when_numba_compiled():
     slow_load = warmup.WarmUp(('imls',), 10.7, '/cache', compiled=0)
     compiled = warmup.WarmUp(('imls',), 41.0, '/cache', compiled=23)
     quick = warmup.WarmUp(('imls',), 0.6, '/cache', compiled=0)
-    assert warm_up_note(slow_load, 'imls') == (
+    assert slow_load.note(WARM_UP_NOTE_SECONDS) == (
         'loaded the imls kernels from the cache in 10.7 s (none compiled; the machine is busy)')
-    assert warm_up_note(compiled, 'imls').startswith(
+    assert compiled.note(WARM_UP_NOTE_SECONDS).startswith(
         'compiled 23 imls kernel specialisations in 41.0 s: laser_odom_warmup was not run')
-    assert warm_up_note(quick, 'imls') == ''
+    assert quick.note(WARM_UP_NOTE_SECONDS) == ''
 
 
 def test_warm_up_counts_what_numba_compiled_and_runs_each_matcher_once(monkeypatch):

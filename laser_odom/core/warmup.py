@@ -53,6 +53,23 @@ class WarmUp:
     settings: int = 0
     """How many settings (defaults and variants) were run."""
 
+    def note(self, slow: float) -> str:
+        """Return what a node's start says: a compilation always, a load slower than ``slow``.
+
+        numba's statistics tell a compilation (a kernel not in the cache:
+        laser_odom_warmup was not run after this install) from a load that was merely
+        slow (a busy machine).
+        """
+        names = ', '.join(self.matchers)
+        if self.compiled:
+            return (f'compiled {self.compiled} {names} kernel specialisations in '
+                    f'{self.seconds:.1f} s: laser_odom_warmup was not run after this install '
+                    f'(or the source changed); cached in {self.cache_dir} for later starts')
+        if self.seconds > slow:
+            return (f'loaded the {names} kernels from the cache in {self.seconds:.1f} s '
+                    '(none compiled; the machine is busy)')
+        return ''
+
 
 def kernel_cache_dir() -> str:
     """Return the folder numba caches the compiled kernels in."""

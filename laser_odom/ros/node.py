@@ -45,7 +45,7 @@ from std_srvs.srv import Trigger
 
 from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
-from laser_odom.core.warmup import warm_up, WarmUp
+from laser_odom.core.warmup import warm_up
 from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
 from laser_odom.io.text_output import reader_may_leave
 from laser_odom.ros import extrinsic
@@ -72,22 +72,6 @@ LATENCY_WINDOW = 1000
 
 WARM_UP_NOTE_SECONDS = 2.0
 """A start whose kernel warm-up took longer than this says so, even if it compiled nothing."""
-
-
-def warm_up_note(done: WarmUp, matcher: str) -> str:
-    """Return what the start's warm-up says: compiled kernels always, a slow load too.
-
-    numba's statistics tell a compilation (a kernel not in the cache: laser_odom_warmup
-    was not run after this install) from a load that was merely slow (a busy machine).
-    """
-    if done.compiled:
-        return (f'compiled {done.compiled} {matcher} kernel specialisations in '
-                f'{done.seconds:.1f} s: laser_odom_warmup was not run after this install (or '
-                f'the source changed); cached in {done.cache_dir} for later starts')
-    if done.seconds > WARM_UP_NOTE_SECONDS:
-        return (f'loaded the {matcher} kernels from the cache in {done.seconds:.1f} s '
-                '(none compiled; the machine is busy)')
-    return ''
 
 
 class WaitingScan(NamedTuple):
@@ -174,7 +158,7 @@ class LaserOdomNode(Node):
 
     def _warm_up(self, matcher: str) -> None:
         """Compile (or load) the matcher's kernels before the first scan can arrive."""
-        note = warm_up_note(warm_up([matcher]), matcher)
+        note = warm_up([matcher]).note(WARM_UP_NOTE_SECONDS)
         if note:
             self.get_logger().info(note)
 

@@ -81,9 +81,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--min-coverage', type=number_in(float, 0.0, 1.0, what='number'),
                    default=DEFAULT_MIN_COVERAGE,
                    metavar='FRACTION',
-                   help='--reference: fail (exit 2) when less than this fraction of the '
-                   'estimated poses pair with a reference pose; the outputs are written '
-                   f'anyway (default: {DEFAULT_MIN_COVERAGE:g})')
+                   help='--reference: fail (exit 2) when the reference covers less than '
+                   "this fraction of the run's duration (judged by time span: keyframes "
+                   'that span the run cover it) or of its poses within the run pair with '
+                   f'no scan; the outputs are written anyway (default: {DEFAULT_MIN_COVERAGE:g})')
     p.add_argument('--plot', type=Path, metavar='PNG',
                    help='after the run, write a PNG: the trajectory (and the SE(2)-aligned '
                    '--reference) over the map the scans make at the estimated poses, and '
