@@ -33,8 +33,12 @@ TRIGGER = 'std_srvs/srv/Trigger'
 NODE_NAME = 'laser_odom'
 """The node's default name."""
 
-DISCOVERY_TIMEOUT = 15.0
-"""Seconds to wait for a ``laser_odom`` node to appear on the graph."""
+DISCOVERY_TIMEOUT = 30.0
+"""Seconds to wait for a ``laser_odom`` node to appear on the graph (one started just
+before may take that long to import and join it on a busy machine)."""
+
+PATIENCE = 3.0
+"""Seconds after which a wait for a node that has not appeared says what it waits for."""
 
 STARTUP_TIMEOUT = 300.0
 """Seconds to wait for a node that is on the graph but still starting (warming up)."""
@@ -181,7 +185,7 @@ def wait_for_node(node: 'Node', target: Target, spin: Callable[[float], None],
     ``discovery_timeout``, when several do, or when the one that does never gets ready.
     """
     start = time.monotonic()
-    told = False
+    told = announced = False
     settle_until: float | None = None
     while True:
         fitting = [n for n in find_nodes(node) if target.fits(n)]
@@ -204,7 +208,10 @@ def wait_for_node(node: 'Node', target: Target, spin: Callable[[float], None],
             if elapsed > startup_timeout:
                 raise NodeNotFound(f'{fitting[0].name} did not finish starting within '
                                    f'{startup_timeout:.0f} s')
-        elif elapsed > discovery_timeout:
+        elif say is not None and not announced and elapsed > PATIENCE:
+            say(f'waiting for a laser_odom node ({target.describe()}) on {domain_text()}')
+            announced = True
+        if not fitting and elapsed > discovery_timeout:
             raise NodeNotFound(
                 f'no laser_odom node found ({target.describe()}) on {domain_text()} within '
                 f'{discovery_timeout:.0f} s; start one (laser_odom_node --ros-args ..., or '
