@@ -38,7 +38,10 @@ def ctl(monkeypatch, capsys):
     def run(*argv: str) -> tuple[int, str, str]:
         code = main(list(argv))
         captured = capsys.readouterr()
-        return code, captured.out, captured.err
+        # On a busy machine the tool may say that it waits for the node: not an error.
+        err = ''.join(line for line in captured.err.splitlines(keepends=True)
+                      if not line.startswith('laser_odom_ctl: waiting for'))
+        return code, captured.out, err
     return run
 
 
