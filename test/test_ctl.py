@@ -56,6 +56,8 @@ def test_parameters_are_listed_read_and_set_as_ros2_param_would(node, ctl):
     assert ctl('--namespace', NAMESPACE, 'set', 'global_search', 'off') == (
         0, f"{NODE}: global_search = 'off'\n", '')
     assert ctl('get', 'max_scan_gap')[1] == '5.0\n'
+    assert ctl('--node-name', NODE, 'get', 'max_scan_gap')[1] == '5.0\n'  # NS/NAME
+    assert ctl('--node-name', 'laser_odom', 'get', 'matcher')[1] == 'nicp\n'  # any NS
     assert node.wait_for_output("parameters set: global_search='off'", 10.0)
 
 
