@@ -36,6 +36,7 @@ setup(
             'laser_odom_soak = laser_odom.tools.soak:main',
             'laser_odom_warmup = laser_odom.tools.warmup:main',
             'laser_odom_tune = laser_odom.tools.tune:main',
+            'laser_odom_ctl = laser_odom.tools.ctl:main',
         ],
     },
 )

@@ -48,6 +48,13 @@ TEST_WORLD = World(
 """A compact structured room: the point-to-line matchers track it to millimetres."""
 
 
+READY_LINE = 'laser odometry: matcher '
+"""The node's start-up line, logged once it subscribes to scans (after its warm-up)."""
+
+STARTUP_TIMEOUT = 300.0
+"""Seconds a node may take to start: generous, a condition is waited for, not a time."""
+
+
 def unique_domain_id() -> int:
     """Return a ROS domain id in 1..200 unlikely to be used by a concurrent test run.
 
@@ -101,6 +108,15 @@ class NodeProcess:
         """Wait until ``text`` appears in the node's output (or the node exits)."""
         return wait_for(lambda: text in self.output() or self.process.poll() is not None,
                         timeout) and text in self.output()
+
+    def wait_started(self, timeout: float = STARTUP_TIMEOUT) -> None:
+        """Wait until the node is ready for scans: its start-up line comes after its warm-up.
+
+        A node compiles or loads its kernels before it subscribes to scans, which takes
+        from a second to minutes on a busy machine: tests that need a warm node wait
+        for this, never for a fixed time.
+        """
+        assert self.wait_for_output(READY_LINE, timeout), self.output()
 
     def interrupt(self, timeout: float = 20.0) -> int:
         """Send SIGINT (Ctrl-C) and return the exit code."""
@@ -186,8 +202,12 @@ class OdometryClient:
     def _on_pose(self, msg: PoseStamped) -> None:
         self.pose.setdefault(stamp_to_ns(msg.header.stamp), []).append(msg)
 
-    def wait_ready(self, timeout: float = 30.0) -> bool:
-        """Wait until the node's scan subscription and output publishers are discovered."""
+    def wait_ready(self, timeout: float = STARTUP_TIMEOUT) -> bool:
+        """Wait until the node's scan subscription and output publishers are discovered.
+
+        The node subscribes once its kernels are loaded, which may take long on a busy
+        machine: the deadline is generous, the wait ends as soon as it is there.
+        """
         node = self.peer.node
         return self.peer.spin_until(
             lambda: (self.scan_pub.get_subscription_count() >= 1

@@ -245,6 +245,26 @@ def test_topic_selection_errors(tmp_path):
             list(bag.scans())
 
 
+def test_a_wrong_topic_names_the_laser_scan_topics_there(tmp_path):
+    """Issue 30.8: a mistyped --scan-topic is answered with the topics to choose from."""
+    path = _write_ros1(tmp_path / 'two.bag', n=3, extra_scan_topic=True)
+    with BagReader(path) as bag:
+        with pytest.raises(TopicError) as missing:
+            bag.select_topic('sensor_msgs/msg/LaserScan', '/front_scan')
+        with pytest.raises(TopicError) as wrong_type:
+            bag.select_topic('sensor_msgs/msg/LaserScan', '/odom')
+        assert bag.message_count('/scan') == 3  # from the bag's index
+    assert str(missing.value) == (f'{path}: no topic /front_scan in the bag; its LaserScan '
+                                  'topics: /scan, /scan2')
+    assert str(wrong_type.value).endswith('not sensor_msgs/msg/LaserScan; its LaserScan '
+                                          'topics: /scan, /scan2')
+    write_bag(tmp_path / 'noscan', odometry={'/odom': _odometry(5)})
+    with BagReader(tmp_path / 'noscan') as bag:
+        with pytest.raises(TopicError, match='no topic /scan in the bag; it has no LaserScan '
+                           'topic$'):
+            bag.select_topic('sensor_msgs/msg/LaserScan', 'scan')
+
+
 def test_missing_and_foreign_paths(tmp_path):
     with pytest.raises(BagNotFoundError):
         BagReader(tmp_path / 'absent.bag')

@@ -255,6 +255,27 @@ def test_bag_without_reference_is_timed_only(user_bag, tmp_path, capsys):
     assert 'n/a: no reference for plain' in table
 
 
+def test_bags_of_the_same_name_are_told_apart_by_their_folders(user_bag, tmp_path, capsys):
+    """Issue 30.9: ``--bag A/bag --bag B/bag`` makes rows ``A/bag`` and ``B/bag``."""
+    import shutil
+
+    from laser_odom.io.bag_dataset import bag_names
+    for folder in ('A', 'B'):
+        shutil.copytree(user_bag, tmp_path / folder / 'bag')
+    out = tmp_path / 'rows.json'
+    assert main(['--bag', str(tmp_path / 'A' / 'bag'), '--bag', str(tmp_path / 'B' / 'bag'),
+                 '--matchers', 'plicp', '--priors', 'constant_velocity', '--no-progress',
+                 '--no-search-table', '--json', str(out)]) == 0
+    assert [row['dataset'] for row in json.loads(out.read_text())['rows']] == ['A/bag', 'B/bag']
+    capsys.readouterr()
+    # A bag's own name when it is unique; deeper folders when those clash too; a
+    # simulated dataset's name or the same bag twice get a number.
+    assert bag_names([str(user_bag), str(tmp_path / 'A' / 'bag')]) == ['my_robot', 'bag']
+    assert bag_names(['x/run/bag', 'y/run/bag', 'z/bag']) == ['x/run/bag', 'y/run/bag', 'z/bag']
+    assert bag_names(['a/bag', 'a/bag']) == ['bag', 'bag-2']
+    assert bag_names(['sim-office-360'], taken=['sim-office-360']) == ['sim-office-360-2']
+
+
 def test_bad_bag_is_one_line_and_exit_2(user_bag, tmp_path, capsys):
     from laser_odom.io.bag_writer import write_bag
     from laser_odom.io.tum import read_tum, write_tum

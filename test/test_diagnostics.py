@@ -99,3 +99,20 @@ def test_gap_counter_ignores_sequence_numbers_the_stamps_cannot_hold():
         assert counter.skipped(i * PERIOD, 10 * PERIOD, i + 1) == {}
     assert counter.skipped(6 * PERIOD, 10 * PERIOD, 500, True) == {}
     assert counter.skipped(8 * PERIOD, 10 * PERIOD, 3, False) == {DROPPED: 1}
+
+
+def test_gap_counter_counts_sequence_gaps_across_a_long_stamp_gap():
+    """Issue 30.10: a node busy with one scan while a fast replay sent many still counts them.
+
+    The stamps jump by more than max_gap_ns (a pause, by the stamps alone), but the
+    sequence numbers say the scans in between were published: overwritten while busy.
+    Without sequence numbers the long gap stays a pause.
+    """
+    counter = ScanGapCounter(min_samples=3)
+    for i in range(5):
+        assert counter.skipped(i * PERIOD, 10 * PERIOD, i + 1) == {}
+    assert counter.skipped(60 * PERIOD, 10 * PERIOD, 61, True) == {BUSY: 55}
+    assert counter.skipped(61 * PERIOD, 10 * PERIOD, 62) == {}
+    plain = ScanGapCounter(min_samples=3)
+    for i in (0, 1, 2, 3, 4, 60):
+        assert plain.skipped(i * PERIOD, 10 * PERIOD) == {}

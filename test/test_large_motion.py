@@ -14,6 +14,7 @@ from laser_odom.core.matchers import matcher_names
 from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.priors import PriorConfig, PriorFeed
 from laser_odom.core.runner import run_pipeline
+from laser_odom.core.scan import LaserScan
 from laser_odom.core.simulation import geometry as geo
 from laser_odom.core.simulation import get_world, LaserModel, render_scan, simulate
 from laser_odom.core.simulation.world import World
@@ -74,19 +75,36 @@ def test_search_trigger_is_counted_and_said_with_numbers():
     assert '0.80 m / 25.0 deg from the prediction' in message, message
 
 
-def test_scan_gap_drops_the_prior_says_so_and_the_search_recovers():
+def after_a_gap(prior: str, said: list[str]) -> tuple[OdometryPipeline, LaserScan]:
+    """Return a pipeline that took a first scan, and the second scan, 3 s and STEP later."""
     world = get_world('office')
     start = world.path.poses_at(np.array([8.0]))[0]
     scans = scans_apart(world, start, STEP, seed=8)
     scans[1].stamp_ns = scans[0].stamp_ns + 3_000_000_000
-    said = []
-    pipeline = quiet_pipeline('nicp', 'recover', prior='constant_velocity', said=said)
+    pipeline = quiet_pipeline('nicp', 'recover', prior=prior, said=said)
     pipeline.process(scans[0])
     pipeline.untrusted = ''
-    estimate = pipeline.process(scans[1])
+    return pipeline, scans[1]
+
+
+def test_scan_gap_drops_the_prior_says_so_and_the_search_recovers():
+    said = []
+    pipeline, scan = after_a_gap('constant_velocity', said)
+    estimate = pipeline.process(scan)
     assert estimate.status == 'matched'
     assert pipeline.counters['scan_gap'] == 1 and pipeline.counters['search_gap'] == 1
     assert any('3.00 s between the scans' in m and 'max_scan_gap (1 s)' in m for m in said)
+
+
+def test_wheel_odometry_over_a_scan_gap_is_a_trusted_prediction():
+    """Issue 30.14: with prior odom the measured step spans the 3 s gap: no search needed."""
+    said = []
+    pipeline, scan = after_a_gap('odom', said)
+    estimate = pipeline.process(scan, prior_step=se2.pose(0.78, 0.02, math.radians(24.0)))
+    assert estimate.status == 'matched' and not said
+    assert pipeline.counters['scan_gap'] == 0 and pipeline.counters['search_gap'] == 0
+    error = se2.relative(STEP, estimate.pose)
+    assert np.hypot(error[0], error[1]) < 0.02 and abs(error[2]) < math.radians(0.5)
 
 
 def test_rejection_says_the_correction_against_the_gate():

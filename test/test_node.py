@@ -14,7 +14,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from node_harness import (
     call, imu_msg, latest_status, NodeProcess, odometry_msg, odometry_pose, OdometryClient,
-    pose_error, ROOT, TEST_WORLD, unique_domain_id)
+    pose_error, ROOT, STARTUP_TIMEOUT, TEST_WORLD, unique_domain_id)
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -366,8 +366,9 @@ def test_every_config_file_starts_the_node_and_ctrl_c_exits_cleanly():
             # The start-up line names the file's matcher: the file was applied.
             document = yaml.safe_load(f.read_text())
             matcher = next(iter(document.values()))['ros__parameters'].get('matcher', 'icp')
-            assert process.wait_for_output(f'laser odometry: matcher {matcher},', 60.0), \
-                process.output()
+            started = process.wait_for_output(f'laser odometry: matcher {matcher},',
+                                              STARTUP_TIMEOUT)
+            assert started, process.output()
     finally:
         codes = {f.name: process.interrupt() for f, process in nodes.items()}
     assert all(code == 0 for code in codes.values()), codes

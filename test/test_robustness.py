@@ -95,10 +95,11 @@ def assert_finite(estimate) -> None:
 
 
 # Each malformed scan that passes validation is matched (and de-skewed, and matched again),
-# and a failed match runs the global search and refines its best poses: these counts
-# still produce each of the 18 defects about 40 (matchers) to 200 (icp) times.
-@pytest.mark.parametrize('matcher, count', [('icp', 1800)] + [
-    (name, 400) for name in matcher_names() if name != 'icp'])
+# and a failed match runs the global search and refines its best poses - up to half a
+# minute for one random scan of 20000 points on a busy machine. 200 scans produce each
+# of the 18 defects about 20 times per matcher, and every rejection and warning below.
+# (icp had 1800 and the others 400: a third of the whole suite's time.)
+@pytest.mark.parametrize('matcher, count', [(name, 200) for name in matcher_names()])
 def test_fuzzed_scans_never_escape_or_corrupt(matcher, count):
     rng = np.random.default_rng(sum(map(ord, matcher)))
     said = []

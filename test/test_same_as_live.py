@@ -15,8 +15,8 @@ import sys
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from node_harness import (
-    call, NodeProcess, odometry_pose, OdometryClient, ROOT, TEST_WORLD, unique_domain_id,
-    wait_for)
+    call, NodeProcess, odometry_pose, OdometryClient, READY_LINE, ROOT, STARTUP_TIMEOUT,
+    TEST_WORLD, unique_domain_id, wait_for)
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -81,8 +81,12 @@ PARAMS_FILES = {
 
 
 def _node_outcome(process: NodeProcess) -> tuple:
-    """Return ``(error, warnings, matcher)`` from the node's start-up output."""
-    process.wait_for_output('laser odometry: matcher', 60.0)
+    """Return ``(error, warnings, matcher)`` from the node's start-up output.
+
+    The node either starts (its start-up line) or stops with an error line: whichever
+    comes, however long its warm-up takes.
+    """
+    process.wait_for_output(READY_LINE, STARTUP_TIMEOUT)
     output = process.output()
     errors = [line[len(NODE_ERROR):] for line in output.splitlines()
               if line.startswith(NODE_ERROR)]
@@ -147,8 +151,9 @@ def test_every_config_file_applies_to_a_namespaced_or_renamed_node(remap):
         for f, process in nodes.items():
             section = next(iter(yaml.safe_load(f.read_text()).values()))['ros__parameters']
             matcher = section.get('matcher', 'nicp')
-            assert process.wait_for_output(f'laser odometry: matcher {matcher},', 60.0), \
-                process.output()
+            started = process.wait_for_output(f'laser odometry: matcher {matcher},',
+                                              STARTUP_TIMEOUT)
+            assert started, process.output()
             assert 'no section for' not in process.output()
     finally:
         for process in nodes.values():

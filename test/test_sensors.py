@@ -397,8 +397,8 @@ def test_ideal_default_dataset_matches_the_stored_digest():
     assert _digest(data.scans, data.reference.poses, decimals=9) == STORED_DIGEST
 
 
-def test_readme_sensor_table_matches_the_presets():
-    readme = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
+def test_documented_sensor_table_matches_the_presets():
+    readme = (Path(__file__).resolve().parents[1] / 'docs' / 'tools.md').read_text()
     rows = {}
     for line in readme.splitlines():
         match = re.match(r'\| `(\w+)`[^|]*\| ([\d.]+) Hz \| (\d+) \| (\d+) deg \| '

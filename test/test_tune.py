@@ -266,7 +266,7 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
         'no scans': ([str(no_scans)], 'no LaserScan topic'),
         'no overlap': ([bag, '--reference', str(far)], 'does not overlap'),
         'little overlap': ([bag, '--reference', str(half)],
-                           'tune0/bag (40%), less than --min-coverage 0.5'),
+                           'it covers only 39 % of the run in time (40 of 100 poses'),
         'odom topic': ([bag, '--odom-topic', 'odm'], 'no topic /odm in the bag'),
         'empty range': ([bag, '--space', str(empty)], 'empty range'),
         'postgres': ([bag, '--storage', 'postgresql://nobody@127.0.0.1:1/x'],
@@ -286,3 +286,14 @@ def test_bad_input_is_one_line_and_exit_2(sim, tmp_path, capsys, monkeypatch):
     assert main([str(sim / 'bag')]) == 2
     assert capsys.readouterr().err.strip() == (
         'laser_odom_tune: error: laser_odom_tune needs optuna: pip install optuna')
+
+
+def test_a_keyframe_reference_spanning_the_bag_is_accepted(sim, tmp_path, capsys):
+    """A reference on every third scan (MIT CSAIL's pairs with 35 %) covers the bag in time."""
+    reference = load_bag(str(sim / 'bag'), None, None, '/odom').reference
+    keyframes = tmp_path / 'keyframes.tum'
+    write_tum(keyframes, type(reference)(reference.stamps_ns[::3], reference.poses[::3]))
+    assert main([str(sim / 'bag'), '--reference', str(keyframes), '--matchers', 'plicp',
+                 '--trials', '1', '--output', str(tmp_path / 't.yaml'), '--quiet']) == 0
+    rows = _table(capsys.readouterr().out)
+    assert 0.0 < float(rows['plicp'][0]) < 0.01  # scored against the keyframes (RPE)

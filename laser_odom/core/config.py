@@ -68,7 +68,8 @@ class MotionConfig:
         'odom (wheel odometry) or imu (yaw from an IMU).', choices=PRIORS)
     max_scan_gap: float = param(
         1.0, 'A gap between scans longer than this [s] drops the motion prior (the next '
-        'match is not predicted; the global search recovers it).', 0.0, 3600.0)
+        'match is not predicted; the global search recovers it), unless it is wheel '
+        'odometry (prior: odom), which measures the motion over any gap.', 0.0, 3600.0)
 
 
 @dataclass

@@ -77,16 +77,25 @@ class MotionModel:
             return mean
         return median if dt < 0.5 * median else dt
 
-    def gap_exceeded(self, dt: float) -> bool:
-        """Tell whether ``dt`` is longer than ``max_scan_gap``: no prediction over it."""
-        return dt > self.config.max_scan_gap
+    def gap_exceeded(self, dt: float, prior_step: se2.Pose | None = None) -> bool:
+        """Tell whether ``dt`` is longer than ``max_scan_gap``: no prediction over it.
+
+        Wheel odometry (``prior: odom``) measures the motion over any gap, so a gap only
+        drops an extrapolation: the constant velocity (and the IMU prior's translation).
+        """
+        return dt > self.config.max_scan_gap and not self._measured(prior_step)
+
+    def _measured(self, prior_step: se2.Pose | None) -> bool:
+        """Tell whether the prediction is a measured wheel-odometry step."""
+        return (self.config.prior == 'odom' and prior_step is not None
+                and se2.is_finite_pose(prior_step))
 
     def predict(self, dt: float, prior_step: se2.Pose | None = None,
                 prior_yaw: float | None = None,
                 counters: Counter[str] | None = None) -> se2.Pose:
         """Return the predicted motion (base frame of the previous scan) over ``dt``."""
         cfg = self.config
-        if cfg.prior == 'none' or self.gap_exceeded(dt):
+        if cfg.prior == 'none' or self.gap_exceeded(dt, prior_step):
             return se2.pose()
         constant_velocity = self.velocity * self.effective_dt(dt)
         if cfg.prior == 'odom':

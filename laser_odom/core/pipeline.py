@@ -199,7 +199,7 @@ class OdometryPipeline:
         if self.keyframe is None:
             estimate = self._initialise(current, scan.stamp_ns)
         else:
-            untrusted = self._distrust(dt, scan.stamp_ns)
+            untrusted = self._distrust(dt, scan.stamp_ns, prior_step)
             guess_step = self.motion.predict(dt, prior_step, prior_yaw, self.counters)
             estimate = self._register(current, guess_step, dt, scan.stamp_ns, untrusted)
         estimate.processing_time = time.perf_counter() - started
@@ -251,12 +251,12 @@ class OdometryPipeline:
         self.last_stamp_ns = stamp_ns
         return 0.0 if last is None else (stamp_ns - last) * 1e-9
 
-    def _distrust(self, dt: float, stamp_ns: int) -> str:
+    def _distrust(self, dt: float, stamp_ns: int, prior_step: se2.Pose | None = None) -> str:
         """Return why this match's prediction cannot be trusted ('' when it can)."""
         motion = self.config.motion
         if motion.prior == 'none':
             return 'no_prior'
-        if self.motion.gap_exceeded(dt):
+        if self.motion.gap_exceeded(dt, prior_step):
             self.events.warn('scan_gap', f'{dt:.2f} s between the scans before '
                              f't={stamp_ns * 1e-9:.3f}, longer than max_scan_gap '
                              f'({motion.max_scan_gap:g} s): the motion prior is dropped')

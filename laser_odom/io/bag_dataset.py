@@ -15,7 +15,7 @@ from typing import Callable, Collection, Sequence
 
 import numpy as np
 
-from laser_odom.core.metrics import associate
+from laser_odom.core.coverage import reference_coverage
 from laser_odom.core.trajectory import Dataset, RecordedBag, Trajectory
 from laser_odom.io.bag_reader import BagReader, IMU, LASER_SCAN, ODOMETRY
 from laser_odom.io.tum import read_tum, TumFormatError
@@ -30,15 +30,44 @@ NO_REFERENCE = '-'
 """A ``--reference`` that gives its bag no file (the bag's ``/ground_truth``, if any)."""
 
 
-def bag_name(path: str, taken: Collection[str]) -> str:
-    """Return a dataset name for a bag: its directory or file name, made unique."""
+def _name_parts(path: str) -> list[str]:
+    """Return a bag path's components, the bag's own name (a file without suffix) last."""
     bag = Path(path)
-    base = (bag.name if bag.is_dir() else bag.stem) or str(bag)
-    name, number = base, 1
-    while name in taken:
-        number += 1
-        name = f'{base}-{number}'
-    return name
+    parts = [part for part in bag.resolve().parts if part not in ('/', '')] or [str(bag)]
+    if not bag.is_dir():
+        parts[-1] = bag.stem or parts[-1]
+    return parts
+
+
+def bag_names(paths: Sequence[str], taken: Collection[str] = ()) -> list[str]:
+    """Return a dataset name for each bag: its directory or file name, told apart.
+
+    Bags of the same name (``A/bag``, ``B/bag``) are named by as many of their parent
+    folders as it takes to tell them apart (``A/bag``, ``B/bag``); a name in ``taken``
+    (a simulated or real dataset) or the same bag given twice gets ``-2``, ``-3``.
+    """
+    parts = [_name_parts(path) for path in paths]
+    depth = [1] * len(paths)
+
+    def name(i: int) -> str:
+        return '/'.join(parts[i][-depth[i]:])
+
+    while True:
+        names = [name(i) for i in range(len(paths))]
+        clashing = [i for i, n in enumerate(names) if depth[i] < len(parts[i]) and any(
+            names[j] == n and parts[j] != parts[i] for j in range(len(paths)))]
+        if not clashing:
+            break
+        for i in clashing:
+            depth[i] += 1
+    unique: list[str] = []
+    for base in names:
+        candidate, number = base, 1
+        while candidate in taken or candidate in unique:
+            number += 1
+            candidate = f'{base}-{number}'
+        unique.append(candidate)
+    return unique
 
 
 def bag_reference(reference: str | None) -> Trajectory | None:
@@ -81,22 +110,22 @@ def read_bag(path: str, reference: str | None = None, scan_topic: str | None = N
 
 
 def check_overlap(bag: RecordedBag, name: str, min_coverage: float = 0.0) -> None:
-    """Raise ValueError when the reference pairs with too few of the bag's scans in time.
+    """Raise ValueError when the reference covers too little of the bag's scans in time.
 
-    Too few is fewer than two, or fewer than ``min_coverage`` of the scans (the
-    replay's ``--min-coverage`` rule, with the scan stamps in place of poses).
+    Too little is fewer than two paired scans, or less than ``min_coverage`` of the
+    run's duration (the replay's ``--min-coverage`` rule, by time span: a keyframe
+    reference spanning the whole run covers it, :mod:`laser_odom.core.coverage`).
     """
     stamps = np.array([scan.stamp_ns for scan in bag.scans], dtype=np.int64)
-    paired = (len(associate(Trajectory(stamps, np.zeros((len(stamps), 3))),
-                            bag.reference)[0]) if bag.reference is not None else 0)
-    if paired < 2:
+    reference = bag.reference if bag.reference is not None else Trajectory()
+    coverage = reference_coverage(stamps, reference)
+    if coverage.paired < 2:
         raise ValueError(f'reference {bag.reference_source} does not overlap {name} in time: '
-                         f'it pairs with {paired} of {len(stamps)} scans (stamps within '
-                         '10 ms)')
-    if paired < min_coverage * len(stamps):
-        raise ValueError(f'reference {bag.reference_source} covers only {paired} of '
-                         f'{len(stamps)} scans of {name} ({paired / len(stamps):.0%}), less '
-                         f'than --min-coverage {min_coverage:g}')
+                         f'it pairs with {coverage.paired} of {len(stamps)} scans (stamps '
+                         'within 10 ms)')
+    if coverage.fraction < min_coverage:
+        raise ValueError(f'reference {bag.reference_source} of {name}: '
+                         f'{coverage.shortfall()}, less than --min-coverage {min_coverage:g}')
 
 
 def load_bag_dataset(path: str, name: str, reference: str | None = None,
@@ -119,8 +148,7 @@ def bag_loaders(bags: Sequence[str], references: Sequence[str], taken: Collectio
         raise ValueError(f'{len(references)} --reference for {len(bags)} --bag: the i-th '
                          '--reference belongs to the i-th --bag')
     loaders: dict[str, Callable[[], Dataset]] = {}
-    for index, path in enumerate(bags):
-        name = bag_name(path, [*taken, *loaders])
+    for index, (path, name) in enumerate(zip(bags, bag_names(bags, taken))):
         reference = references[index] if index < len(references) else None
         dataset = load_bag_dataset(path, name, reference, scan_topic)
         loaders[name] = lambda dataset=dataset: dataset

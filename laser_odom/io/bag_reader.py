@@ -109,6 +109,8 @@ class BagReader:
         self.strict_error: str | None = None
         self._source = self._open_source()
         self.topics: dict[str, str] = dict(self._source.topics)
+        self.counts: dict[str, int] = dict(self._source.counts)
+        """Messages per topic from the bag's index; empty for a bag read record by record."""
 
     def _open_source(self) -> Any:
         """Open with rosbags, or fall back to the record-by-record readers."""
@@ -163,15 +165,17 @@ class BagReader:
         :class:`BagTruncatedError` when nothing at all could be read from a damaged bag.
         """
         name = msgtype.rsplit('/', 1)[-1]
+        candidates = self.topics_of_type(msgtype)
         if requested is not None:
             requested = requested if requested.startswith('/') else '/' + requested
+            there = (f'; its {name} topics: {", ".join(candidates)}' if candidates
+                     else f'; it has no {name} topic')
             if requested not in self.topics:
-                raise TopicError(f'{self.path}: no topic {requested} in the bag')
+                raise TopicError(f'{self.path}: no topic {requested} in the bag{there}')
             if self.topics[requested] != msgtype:
                 raise TopicError(f'{self.path}: topic {requested} is '
-                                 f'{self.topics[requested]}, not {msgtype}')
+                                 f'{self.topics[requested]}, not {msgtype}{there}')
             return requested
-        candidates = self.topics_of_type(msgtype)
         if not candidates:
             if not self.topics and self.strict_error is not None:
                 raise BagTruncatedError(self.path, 0, self.strict_error)
@@ -180,6 +184,10 @@ class BagReader:
             raise TopicError(f'{self.path}: several {name} topics ({", ".join(candidates)}); '
                              f'choose one with {option}')
         return candidates[0]
+
+    def message_count(self, topic: str) -> int | None:
+        """Return how many messages ``topic`` holds by the bag's index (None: unknown)."""
+        return self.counts.get(topic)
 
     def messages(self, topics: Collection[str]) -> Iterator[Message]:
         """Yield ``(topic, log_time_ns, message)`` of ``topics``.

@@ -84,6 +84,9 @@ class RosbagsSource:
         self._reader = AnyReader([path], default_typestore=default)
         self._reader.open()
         self.topics = {name: info.msgtype or '' for name, info in self._reader.topics.items()}
+        self.counts: dict[str, int] = {
+            name: info.msgcount for name, info in self._reader.topics.items()}
+        """Messages per topic, as the bag's index says (the record readers have none)."""
 
     def close(self) -> None:
         """Close the reader."""
@@ -117,6 +120,7 @@ class Ros1RecordSource:
         self._types = _TypeResolver(get_typestore(Stores.ROS1_NOETIC))
         self.topics = {c.topic: normalize_msgtype(c.msgtype)
                        for c in self._connections.values()}
+        self.counts: dict[str, int] = {}
 
     def close(self) -> None:
         """Close the file."""
@@ -158,6 +162,7 @@ class Ros2SalvageSource:
             raise
         self._types = _TypeResolver(get_typestore(Stores.ROS2_JAZZY))
         self.topics: dict[str, str] = {}
+        self.counts: dict[str, int] = {}
         for reader in self._readers:
             channels = (reader.read_channels() if isinstance(reader, McapSalvageReader)
                         else reader.channels.values())

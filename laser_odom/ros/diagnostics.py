@@ -72,10 +72,13 @@ class ScanGapCounter:
 
     The period is the median of the recent stamp gaps, each divided by the number of
     scans published in it, so a node that is always busy still learns the scanner's
-    period. Gaps longer than ``max_gap_ns`` (a pause, a restart) and stamps or sequence
-    numbers going back are not counted, nor sequence gaps far longer than the stamps
-    allow (two publishers on one topic). A middleware without sequence numbers or
-    reception times leaves only the stamps, and every missing scan counts as dropped.
+    period. A gap in the stamps longer than ``max_gap_ns`` (a pause) is not taken for
+    lost scans, but a gap in the sequence numbers across it is (a node busy for that
+    long with one scan - a replay played faster than the node runs - still says what
+    it did not process); stamps or sequence numbers going back are not counted, nor
+    sequence gaps far longer than the stamps allow (two publishers on one topic). A
+    middleware without sequence numbers or reception times leaves only the stamps, and
+    every missing scan counts as dropped.
     """
 
     def __init__(self, window: int = 50, min_samples: int = 5) -> None:
@@ -102,19 +105,19 @@ class ScanGapCounter:
                 self._periods.clear()
             return {}
         gap = stamp_ns - last
-        if gap > max_gap_ns:
-            return {}
         enough = len(self._periods) >= self._min_samples
         # statistics.median sorts the 50 floats in C; numpy's converts the deque first,
         # which costs more than the rest of this call, on every scan.
         period = statistics.median(self._periods) if enough else 0.0
         if period > 0.0 and published > 2.0 * gap / period + 1.0:
             published = 1  # more scans than the stamps have room for: two publishers
-        self._periods.append(gap / published)
-        from_stamps = int(round(gap / period)) - 1 if period > 0.0 and gap > 1.5 * period else 0
         undelivered = published - 1
         counts = {BUSY if waited else DROPPED: undelivered}
-        counts[DROPPED] = counts.get(DROPPED, 0) + max(0, from_stamps - undelivered)
+        if gap <= max_gap_ns:  # a longer gap is a pause: only the sequence numbers count
+            self._periods.append(gap / published)
+            from_stamps = (int(round(gap / period)) - 1
+                           if period > 0.0 and gap > 1.5 * period else 0)
+            counts[DROPPED] = counts.get(DROPPED, 0) + max(0, from_stamps - undelivered)
         return {k: v for k, v in counts.items() if v}
 
 

@@ -71,7 +71,7 @@ LATENCY_WINDOW = 1000
 """Recent receipt-to-publish latencies kept for /diagnostics."""
 
 WARM_UP_NOTE_SECONDS = 2.0
-"""A start whose kernel warm-up took longer than this says so (it compiled them)."""
+"""A start whose kernel warm-up took longer than this says so, even if it compiled nothing."""
 
 
 class WaitingScan(NamedTuple):
@@ -158,11 +158,9 @@ class LaserOdomNode(Node):
 
     def _warm_up(self, matcher: str) -> None:
         """Compile (or load) the matcher's kernels before the first scan can arrive."""
-        done = warm_up([matcher])
-        if done.seconds > WARM_UP_NOTE_SECONDS:
-            self.get_logger().info(
-                f'compiled the {matcher} kernels in {done.seconds:.1f} s (once after an '
-                f'install; cached in {done.cache_dir} for later starts)')
+        note = warm_up([matcher]).note(WARM_UP_NOTE_SECONDS)
+        if note:
+            self.get_logger().info(note)
 
     def _log_startup(self) -> None:
         """Say once what the node runs with and where it reads and writes."""

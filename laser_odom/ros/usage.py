@@ -30,7 +30,16 @@ Publishes:
                             (publish_debug)
   /diagnostics              diagnostic_msgs/DiagnosticArray, once a second
 Services:
-  ~/reset                   std_srvs/Trigger: restart at the origin"""
+  ~/reset                   std_srvs/Trigger: restart at the origin
+
+Talking to a running node (laser_odom_ctl needs no ros2 CLI; it finds the node in any
+namespace, or give --namespace NS / --node-name NAME):
+  laser_odom_ctl params               ros2 param dump /laser_odom
+  laser_odom_ctl get NAME             ros2 param get /laser_odom NAME
+  laser_odom_ctl set NAME VALUE       ros2 param set /laser_odom NAME VALUE
+  laser_odom_ctl reset                ros2 service call /laser_odom/reset std_srvs/srv/Trigger
+  laser_odom_ctl reset X Y YAW        ros2 topic pub --once /laser_odom/set_pose ...
+  laser_odom_ctl status               ros2 topic echo /diagnostics"""
 
 
 def wants_help(argv: list[str]) -> bool:
@@ -96,7 +105,7 @@ def usage() -> str:
         '                       [--params-file FILE] [-p NAME:=VALUE] ...]',
         '',
         'Scan-to-scan 2D laser odometry (ICP, PL-ICP, NICP, IMLS-ICP) as a ROS 2 node',
-        f'(node name {PACKAGE}). ros2 run: ros2 run {PACKAGE} laser_odom_node --ros-args ...',
+        f'(node name {PACKAGE}). With colcon: ros2 run {PACKAGE} laser_odom_node --ros-args ...',
         '',
         TOPICS,
         '',
@@ -104,7 +113,7 @@ def usage() -> str:
         'Sections keyed "/**:" apply under any node name and namespace. Unknown names are',
         'warned about; an integer is taken where a floating-point number is declared.',
         '',
-        'Parameters (ros2 param describe /laser_odom NAME for more):',
+        'Parameters (laser_odom_ctl params, or ros2 param describe /laser_odom NAME):',
         *[_parameter_line(s) for s in specs],
         '',
         'Matcher parameters, per matcher (' + ', '.join(matcher_groups) + '): '

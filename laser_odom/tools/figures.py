@@ -1,11 +1,15 @@
 """Documented figures, rendered from the committed benchmark result (``make docs``).
 
-The README's table of real-log figures and its per-scan times, and the block "Measured
-with these values" in each ``config/<matcher>.yaml``, are written from
+Every block between ``<!-- figures:NAME:begin -->`` and ``<!-- figures:NAME:end -->``
+in the README and the pages of ``docs/`` (the real-log table in the README, the
+per-scan times in ``docs/benchmark.md``, the NEES in ``docs/node.md``), and the block
+"Measured with these values" in each ``config/<matcher>.yaml``, are written from
 ``test/figures/benchmark.json`` - the ``--json`` of one ``laser_odom_bench`` run
-(``make figures``), which records its date, machine and library versions. Nothing is
-typed by hand: ``test_docs`` fails when the files and the JSON disagree, and
-``test_real_data`` fails when the code falls more than 5 % behind a committed figure.
+(``make figures``), which records its date, machine and library versions. A block may
+sit in any of those documents (:data:`BLOCKS` renders it wherever its markers are), but
+in exactly one. Nothing is typed by hand: ``test_docs`` fails when the files and the
+JSON disagree, and ``test_real_data`` fails when the code falls more than 5 % behind a
+committed figure.
 """
 
 from __future__ import annotations
@@ -31,10 +35,15 @@ PRIOR = 'constant_velocity'
 TIMING_DATASETS = ('fr079', 'sim-office-1081')
 """Datasets whose median time per scan the README quotes (360 and 1081 beams)."""
 
-README_MARKERS = {'table': ('<!-- figures:table:begin -->', '<!-- figures:table:end -->'),
-                  'speed': ('<!-- figures:speed:begin -->', '<!-- figures:speed:end -->'),
-                  'nees': ('<!-- figures:nees:begin -->', '<!-- figures:nees:end -->')}
+DOCUMENTS = ('README.md', 'docs/benchmark.md', 'docs/node.md')
+"""Documents (relative to the source tree) whose figure blocks ``make docs`` renders."""
+
 CONFIG_MARKERS = ('# figures:begin', '# figures:end')
+
+
+def markers(block: str) -> tuple[str, str]:
+    """Return the begin and end marker lines of a figure block in Markdown."""
+    return f'<!-- figures:{block}:begin -->', f'<!-- figures:{block}:end -->'
 
 
 class FiguresError(ValueError):
@@ -141,11 +150,20 @@ def replace_between(text: str, markers: tuple[str, str], body: str, where: str) 
     return f'{head}{begin}\n{body}{end}{tail}'
 
 
-def rendered_readme(text: str, payload: Mapping[str, Any]) -> str:
-    """Return the README text with its figures rendered from ``payload``."""
-    text = replace_between(text, README_MARKERS['table'], readme_table(payload), 'README')
-    text = replace_between(text, README_MARKERS['speed'], speed_sentence(payload), 'README')
-    return replace_between(text, README_MARKERS['nees'], nees_sentence(payload), 'README')
+BLOCKS = {'table': readme_table, 'speed': speed_sentence, 'nees': nees_sentence}
+"""Every figure block, by name: its renderer from the benchmark result."""
+
+
+def blocks_in(text: str) -> list[str]:
+    """Return the names of the figure blocks whose markers a document holds."""
+    return [name for name in BLOCKS if markers(name)[0] in text]
+
+
+def rendered_text(text: str, payload: Mapping[str, Any], where: str = 'README') -> str:
+    """Return a document with every figure block it holds rendered from ``payload``."""
+    for name in blocks_in(text):
+        text = replace_between(text, markers(name), BLOCKS[name](payload), where)
+    return text
 
 
 def rendered_config(text: str, payload: Mapping[str, Any], matcher: str) -> str:
@@ -172,21 +190,34 @@ def regression(row: Mapping[str, Any], documented: Mapping[str, Any],
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Rewrite the README and config figures from the committed benchmark result."""
+    """Rewrite the documented figures from the committed benchmark result."""
     parser = argparse.ArgumentParser(prog='python -m laser_odom.tools.figures',
                                      description=__doc__.splitlines()[0])
     parser.add_argument('--json', type=Path, default=FIGURES_JSON,
                         help='benchmark result (default: test/figures/benchmark.json)')
-    parser.add_argument('--readme', type=Path, default=ROOT / 'README.md',
-                        help="README to update (default: the source tree's)")
-    parser.add_argument('--config-dir', type=Path, default=ROOT / 'config',
-                        help='folder of the <matcher>.yaml files to update (default: config)')
+    parser.add_argument('--root', type=Path, default=ROOT,
+                        help='source tree whose README.md, docs/ and config/ to update '
+                        "(default: this package's)")
     args = parser.parse_args(argv)
     try:
         payload = load_figures(args.json)
-        updated = {args.readme: rendered_readme(args.readme.read_text(), payload)}
+        updated = {}
+        placed: dict[str, str] = {}
+        for relative in DOCUMENTS:
+            path = args.root / relative
+            text = path.read_text()
+            for name in blocks_in(text):
+                if name in placed:
+                    raise FiguresError(f'figure block {name} is in {placed[name]} and in '
+                                       f'{relative}: keep it in one')
+                placed[name] = relative
+            updated[path] = rendered_text(text, payload, relative)
+        missing = sorted(set(BLOCKS) - set(placed))
+        if missing:
+            raise FiguresError(f'no document holds the figure block {missing[0]} (markers '
+                               f'{markers(missing[0])[0]} ...)')
         for matcher in MATCHERS:
-            path = args.config_dir / f'{matcher}.yaml'
+            path = args.root / 'config' / f'{matcher}.yaml'
             updated[path] = rendered_config(path.read_text(), payload, matcher)
     except (FiguresError, OSError) as error:
         print(f'figures: error: {error}', file=sys.stderr)

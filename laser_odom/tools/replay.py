@@ -35,11 +35,13 @@ from laser_odom.core.priors import PriorConfig, PriorFeed
 from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import LaserScan
 from laser_odom.core.settings import NodeSettings, settings_from_params
+from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_reader import (
     BagError, BagReader, BagTruncatedError, LASER_SCAN)
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import reader_may_leave
+from laser_odom.ros.graph import NODE_NAME, Target
 from laser_odom.tools.arguments import number_in
 from laser_odom.tools.plots import (
     check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
@@ -47,6 +49,7 @@ from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import (
     DEFAULT_MIN_COVERAGE, print_summary, read_reference, ReplayError, ReplayRecord,
     write_outputs)
+from laser_odom.tools.stopping import stop_between_scans
 
 PROG = 'laser_odom_replay'
 PROGRESS_EVERY = 500
@@ -78,9 +81,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--min-coverage', type=number_in(float, 0.0, 1.0, what='number'),
                    default=DEFAULT_MIN_COVERAGE,
                    metavar='FRACTION',
-                   help='--reference: fail (exit 2) when less than this fraction of the '
-                   'estimated poses pair with a reference pose; the outputs are written '
-                   f'anyway (default: {DEFAULT_MIN_COVERAGE:g})')
+                   help='--reference: fail (exit 2) when the reference covers less than '
+                   "this fraction of the run's duration (judged by time span: keyframes "
+                   'that span the run cover it) or of its poses within the run pair with '
+                   f'no scan; the outputs are written anyway (default: {DEFAULT_MIN_COVERAGE:g})')
     p.add_argument('--plot', type=Path, metavar='PNG',
                    help='after the run, write a PNG: the trajectory (and the SE(2)-aligned '
                    '--reference) over the map the scans make at the estimated poses, and '
@@ -88,12 +92,20 @@ def build_parser() -> argparse.ArgumentParser:
                    'scan points: the trajectory and the errors only')
     p.add_argument('--live', action='store_true',
                    help='publish the scans to a running laser_odom_node instead')
-    p.add_argument('--scan-topic-out', default='scan', help='--live: scan topic of the node')
-    p.add_argument('--odom-topic-in', default='odom', help='--live: odometry topic of the node')
-    p.add_argument('--node-name', default='laser_odom',
+    p.add_argument('--namespace', metavar='NS',
+                   help='--live: the node runs in namespace NS (-r __ns:=NS): node '
+                   'NS/laser_odom, topics NS/scan and NS/odom; also the node the params '
+                   'file is read for. Default: --live finds the one laser_odom node on the '
+                   'graph, in any namespace, with its actual topics')
+    p.add_argument('--scan-topic-out',
+                   help="--live: scan topic of the node (default: the node's, from the graph)")
+    p.add_argument('--odom-topic-in',
+                   help="--live: odometry topic of the node (default: the node's, from "
+                   'the graph)')
+    p.add_argument('--node-name',
                    help='node name (with namespace, if any) the params file is read for, '
                    'as the node reads it; --live: also the node whose ~/reset and '
-                   'diagnostics are used (default: laser_odom)')
+                   'diagnostics are used (default: laser_odom, or with --live the one found)')
     p.add_argument('--timeout', type=float, default=2.0,
                    help='--live: seconds to wait for the odometry of one scan (with '
                    '--rate: of the last one)')
@@ -108,6 +120,16 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def live_target(args: argparse.Namespace) -> Target:
+    """Return the node ``--live`` drives, as far as the options name it (the rest is found)."""
+    return Target(args.namespace, args.node_name, args.scan_topic_out, args.odom_topic_in)
+
+
+def params_node_name(args: argparse.Namespace) -> str:
+    """Return the fully qualified node name the params file is read for (``/laser_odom``)."""
+    return live_target(args).node_fqn() or '/' + (args.node_name or NODE_NAME).strip('/')
+
+
 def load_settings(args: argparse.Namespace) -> NodeSettings:
     """Return what the node would run with: the params file read as the node reads it.
 
@@ -116,7 +138,7 @@ def load_settings(args: argparse.Namespace) -> NodeSettings:
     """
     values: dict[str, Any] = {}
     if args.params_file is not None:
-        checked = read_params_files([args.params_file], '/' + args.node_name.strip('/'))
+        checked = read_params_files([args.params_file], params_node_name(args))
         for warning in checked.warnings:
             warner(args.quiet)(warning)
         values = checked.values
@@ -158,6 +180,8 @@ def run_in_process(scans: Iterator[LaserScan], pipeline: OdometryPipeline, feed:
         record.scans_read = count
         if not quiet and count % PROGRESS_EVERY == 0:
             print(f'{count} scans replayed so far', file=sys.stderr, flush=True)
+        if record.stop is not None:
+            record.stop.check()  # Ctrl-C: stop here, between two scans
 
     def on_estimate(estimate: OdometryEstimate) -> None:
         record.add(estimate.stamp_ns, estimate.pose, estimate.pose_covariance,
@@ -183,48 +207,69 @@ def warner(quiet: bool) -> Callable[[str], None]:
     return (lambda message: None) if quiet else warn_on_stderr
 
 
-def check_outputs(args: argparse.Namespace) -> None:
-    """Fail early (before the replay) on outputs that cannot be written."""
+def check_inputs(args: argparse.Namespace) -> Trajectory | None:
+    """Fail early (before the replay) on outputs that cannot be written and a bad reference.
+
+    Returns the ``--reference`` trajectory, read now so that a malformed file stops the
+    replay before it starts rather than after the last scan.
+    """
     for path in (args.tum, args.output_bag, args.reference):
         if path is not None and not path.parent.is_dir():
             raise ReplayError(f'directory {path.parent} does not exist (for {path})')
     if args.output_bag is not None and args.output_bag.exists():
         raise ReplayError(f'{args.output_bag} exists already; not overwriting it')
-    if args.reference is not None and not args.reference.is_file():
+    if args.reference is None:
+        return None
+    if not args.reference.is_file():
         raise ReplayError(f'reference file not found: {args.reference}')
+    try:
+        return read_reference(args.reference)
+    except (OSError, ValueError) as err:
+        raise ReplayError(f'cannot read reference {args.reference}: {err}') from None
 
 
 def write_plot(record: ReplayRecord, points: ScanPointsRecorder | None,
-               args: argparse.Namespace) -> None:
-    """Write ``--plot`` (with the reference when it is readable; its errors come later)."""
-    reference = None
-    if args.reference is not None:
-        try:
-            truth = read_reference(args.reference)
-            reference = (truth.stamps_ns, truth.poses)
-        except (OSError, ValueError):
-            pass  # print_summary says what is wrong with it
+               args: argparse.Namespace, reference: Trajectory | None) -> None:
+    """Write ``--plot``, with the reference when there is one."""
     trajectory = record.trajectory()
     plot_replay(args.plot, trajectory.stamps_ns, trajectory.poses,
-                None if points is None else points.points, reference)
+                None if points is None else points.points,
+                None if reference is None else (reference.stamps_ns, reference.poses))
+
+
+def written_lines(record: ReplayRecord, args: argparse.Namespace) -> list[str]:
+    """Return a ``wrote`` line for every file the replay wrote."""
+    poses = len(record.stamps_ns)
+    lines = []
+    if args.tum is not None:
+        lines.append(f'wrote {args.tum} ({poses} poses, TUM)')
+    if args.output_bag is not None and record.messages is not None:
+        lines.append(f'wrote {args.output_bag} ({poses} /odom and /pose messages, '
+                     f'{args.storage})')
+    if args.plot is not None:
+        lines.append(f'wrote {args.plot}')
+    return lines
 
 
 def replay(args: argparse.Namespace) -> int:
     """Run the replay described by parsed arguments; return the exit code."""
-    check_outputs(args)
+    reference = check_inputs(args)
     if args.plot is not None:
         check_plot_output(args.plot)
     settings = load_settings(args)
     config, prior_config = settings.pipeline, settings.priors
-    record = ReplayRecord(live=args.live)
+    record = ReplayRecord(live=args.live, prior=config.motion.prior,
+                          max_scan_gap=config.motion.max_scan_gap)
     if args.output_bag is not None:
         from laser_odom.ros.recording import MessageRecorder  # rclpy: only when asked for
         record.messages = MessageRecorder(settings.node)
     damage: BagTruncatedError | None = None
-    interrupted = False
     points = ScanPointsRecorder() if args.plot is not None and not args.live else None
-    with BagReader(args.bag) as bag:
+    with BagReader(args.bag) as bag, stop_between_scans() as record.stop:
         topic = bag.select_topic(LASER_SCAN, args.scan_topic)
+        record.scans_in_bag = bag.message_count(topic)
+        if record.scans_in_bag == 0:
+            raise ReplayError(f'{args.bag}: 0 scans on {topic}; a replay needs a bag with scans')
         prior = config.motion.prior
         feed = load_prior_feed(bag, prior, prior_config, args)
         try:
@@ -238,25 +283,29 @@ def replay(args: argparse.Namespace) -> int:
         except BagTruncatedError as err:
             damage = err
         except KeyboardInterrupt:
-            interrupted = True
+            record.interrupted = True
+    if record.scans_read == 0 and damage is None and not record.interrupted:
+        raise ReplayError(f'{args.bag}: 0 scans on {topic}; a replay needs a bag with scans')
     write_outputs(record, args)
     if args.plot is not None:
-        write_plot(record, points, args)
+        write_plot(record, points, args, reference)
     problem = ''
     try:
-        print_summary(record, args, topic, config.matcher if not args.live else None)
+        print_summary(record, args, topic, config.matcher if not args.live else None,
+                      reference)
     except ReplayError as err:  # e.g. a reference that hardly covers the trajectory
         if damage is None:
             raise
         problem = f'; {err}'
     finally:
-        if args.plot is not None and not args.quiet:
-            print(f'wrote {args.plot}', flush=True)  # after the summary it illustrates
+        if not args.quiet:  # after the summary they illustrate
+            for line in written_lines(record, args):
+                print(line, flush=True)
     if damage is not None:
         raise ReplayError(f'{damage}; {len(record.stamps_ns)} scans processed'
                           + (', outputs written' if args.tum or args.output_bag else '')
                           + problem)
-    return 130 if interrupted else 0
+    return 130 if record.interrupted else 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -46,13 +46,13 @@ from laser_odom.ros.conversions import (
     covariance_3x3, ns_to_stamp, odometry_pose_from_msg, planar_pose_msg, scan_to_msg,
     stamp_to_ns)
 from laser_odom.ros.diagnostics import BUSY_KEY, DROPPED_KEY
+from laser_odom.ros.graph import (
+    DISCOVERY_TIMEOUT, domain_text, join, NODE_NAME, NodeNotFound, OdometryNode,
+    OPTIONS_HINT, wait_for_node)
 from laser_odom.ros.priors import PRIOR_TOPICS
 from laser_odom.tools.playback import play, RecordedClock
-from laser_odom.tools.replay import PriorFeed
+from laser_odom.tools.replay import live_target, PriorFeed
 from laser_odom.tools.replay_report import ReplayError, ReplayRecord
-
-DISCOVERY_TIMEOUT = 10.0
-"""Seconds to wait for the node's scan subscription and odometry publisher."""
 
 DIAGNOSTICS_WAIT = 2.5
 """Seconds to wait for a diagnostics report (the node sends one per second)."""
@@ -64,27 +64,65 @@ class _Client:
     """The replay's ROS side: publishers, the odometry and diagnostics subscriptions."""
 
     def __init__(self, args: argparse.Namespace, prior: str) -> None:
-        """Create the node in its own context."""
+        """Create the node in its own context and find the odometry node to drive.
+
+        The node and its topics come from the graph (:mod:`laser_odom.ros.graph`),
+        narrowed by ``--namespace``, ``--node-name`` and the topic options; the wait
+        lasts as long as a node that fits is still starting.
+        """
         self.context = rclpy.Context()
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('laser_odom_replay', context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.scan_pub = self.node.create_publisher(LaserScanMsg, args.scan_topic_out, RELIABLE)
+        self.target = live_target(args)
+        found = self._find(args)
+        target = self.target
+        self.node_name = found.name if found else (
+            target.node_fqn() or args.node_name or NODE_NAME)
+        namespace = target.namespace if target.namespace is not None else ''
+        scan_topic = target.scan_topic or (found.scan_topic if found else None) or join(
+            namespace, 'scan')
+        odom_topic = target.odom_topic or (found.odom_topic if found else None) or join(
+            namespace, 'odom')
+        self.scan_pub = self.node.create_publisher(LaserScanMsg, scan_topic, RELIABLE)
         self.prior_pub = None
+        self.prior_listened = found is not None and prior in found.prior_topics
         if prior in PRIOR_TOPICS:
+            topic = (found.prior_topics.get(prior) if found else None) or join(
+                namespace, PRIOR_TOPICS[prior])
             self.prior_pub = self.node.create_publisher(
-                Odometry if prior == 'odom' else Imu, PRIOR_TOPICS[prior], RELIABLE)
+                Odometry if prior == 'odom' else Imu, topic, RELIABLE)
         self.odometry: dict[int, tuple[Odometry, float]] = {}
         self.odom_sub = self.node.create_subscription(
-            Odometry, args.odom_topic_in, self._on_odometry, RELIABLE)
+            Odometry, odom_topic, self._on_odometry, RELIABLE)
         self.diagnostics: dict[str, str] | None = None
         self.diagnostics_count = 0
-        self._node_name = args.node_name.strip('/')
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                       RELIABLE)
-        self.reset_client = self.node.create_client(
-            Trigger, f'/{self._node_name}/reset')
+        reset = self.node_name if self.node_name.startswith('/') else f'/{self.node_name}'
+        self.reset_client = self.node.create_client(Trigger, f'{reset}/reset')
+
+    def _find(self, args: argparse.Namespace) -> OdometryNode | None:
+        """Return the ``laser_odom`` node on the graph that fits the options.
+
+        Given both topics, or a namespace, the replay can drive whatever node uses
+        them (``NS/scan``, ``NS/odom``): if no ``laser_odom`` node fits, it goes on
+        without one and waits for the topics to be matched.
+        """
+        target = self.target
+        fallback = bool(target.scan_topic and target.odom_topic) or target.namespace is not None
+        try:
+            return wait_for_node(
+                self.node, target, lambda seconds: self.spin_until(lambda: False, seconds),
+                discovery_timeout=DISCOVERY_TIMEOUT / 3 if fallback else DISCOVERY_TIMEOUT,
+                say=None if args.quiet else (
+                    lambda message: print(f'--live: {message}', file=sys.stderr, flush=True)),
+                more_options='; with remapped topics, --scan-topic-out and --odom-topic-in')
+        except NodeNotFound as error:
+            if fallback and str(error).startswith('no laser_odom node'):
+                return None
+            raise ReplayError(f'--live: {error}') from None
 
     def close(self) -> None:
         """Destroy the node and shut the context down."""
@@ -99,11 +137,12 @@ class _Client:
     def _is_odometry_node(self, status_name: str) -> bool:
         """Tell whether a status (named ``[ns/]node: ...``) comes from the odometry node.
 
-        A ``--node-name`` without namespace matches that node in any namespace.
+        A bare node name (no node found on the graph) matches that node in any namespace.
         """
         source = status_name.split(':', 1)[0].strip('/')
-        return source == self._node_name or (
-            '/' not in self._node_name and source.rsplit('/', 1)[-1] == self._node_name)
+        name = self.node_name.strip('/')
+        return source == name or (
+            '/' not in name and source.rsplit('/', 1)[-1] == name)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         """Keep the newest status of the odometry node."""
@@ -123,15 +162,21 @@ class _Client:
         return True
 
     def wait_for_node(self) -> None:
-        """Wait until the node's scan subscription and odometry publisher are matched."""
-        if not self.spin_until(lambda: self.scan_pub.get_subscription_count() > 0
-                               and self.odom_sub.get_publisher_count() > 0,
-                               DISCOVERY_TIMEOUT):
+        """Wait until the node's scan subscription and odometry publisher are matched.
+
+        When the node listens to the prior's topic, its subscription is waited for too:
+        the first prior messages would otherwise be lost while it is being matched.
+        """
+        def matched() -> bool:
+            return (self.scan_pub.get_subscription_count() > 0
+                    and self.odom_sub.get_publisher_count() > 0
+                    and (not self.prior_listened or self.prior_pub.get_subscription_count() > 0))
+
+        if not self.spin_until(matched, DISCOVERY_TIMEOUT):
             raise ReplayError(
-                f'--live: no laser_odom_node found (nothing subscribes to '
-                f'{self.scan_pub.topic_name} and publishes {self.odom_sub.topic_name} '
-                f'within {DISCOVERY_TIMEOUT:.0f} s); start it with: ros2 run laser_odom '
-                'laser_odom_node')
+                f'--live: nothing subscribes to {self.scan_pub.topic_name} and publishes '
+                f'{self.odom_sub.topic_name} on {domain_text()} within '
+                f'{DISCOVERY_TIMEOUT:.0f} s; start laser_odom_node, or {OPTIONS_HINT}')
         self.spin_until(lambda: False, 0.3)  # let the node's side of the match settle
 
     def reset_node(self) -> bool:
@@ -182,7 +227,7 @@ LATENCY_KEYS = ('latency median [ms]', 'latency p95 [ms]')
 """Diagnostics keys of the node's receipt-to-publish latency."""
 
 COUNT_KEYS = {'received': 'scans received', 'processed': 'scans processed',
-              'busy': BUSY_KEY, 'dropped': DROPPED_KEY}
+              'busy': BUSY_KEY, 'dropped': DROPPED_KEY, 'prior_missing': 'prior_missing'}
 """Diagnostics keys of the counts reported for a live run (see ReplayRecord.node)."""
 
 
@@ -204,9 +249,11 @@ def _record_answer(record: ReplayRecord, msg: Odometry, seconds: float) -> None:
 
 
 def _progress(record: ReplayRecord, args: argparse.Namespace) -> None:
-    """Print a progress line every 500 scans (unless --quiet)."""
+    """Print a progress line every 500 scans (unless --quiet); stop here on Ctrl-C."""
     if not args.quiet and record.scans_read % 500 == 0:
         print(f'{record.scans_read} scans replayed so far (live)', file=sys.stderr, flush=True)
+    if record.stop is not None:
+        record.stop.check()
 
 
 def _run_lock_step(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
@@ -282,13 +329,30 @@ def _run_at_rate(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
         raise
     finally:
         if sent and not interrupted:
-            last = next(reversed(sent))
-            client.spin_until(lambda: last in client.odometry, args.timeout)
+            _settle(client, list(sent), args.timeout)
         for stamp_ns, at in sent.items():
             answer = client.odometry.pop(stamp_ns, None)
             if answer is not None:
                 _record_answer(record, answer[0], answer[1] - at)
         record.counters['no_answer'] = len(sent) - len(record.stamps_ns)
+        answered = set(record.stamps_ns)
+        taken = [i for i, stamp in enumerate(sent) if stamp in answered]
+        record.after_last = len(sent) - 1 - taken[-1] if taken else len(sent)
+
+
+def _settle(client: _Client, sent: list[int], timeout: float) -> None:
+    """Wait for the answer to the last scan sent, as long as the node keeps answering.
+
+    A node that fell behind is still working through the run when the playback ends;
+    while its answers keep coming (each within ``timeout``) it is waited for, so that
+    every scan is either answered or counted by the node as skipped or dropped.
+    """
+    last = sent[-1]
+    while last not in client.odometry:
+        count = len(client.odometry)
+        if not client.spin_until(lambda: len(client.odometry) > count
+                                 or last in client.odometry, timeout):
+            return
 
 
 def _read_report(client: _Client, before: dict[str, str] | None,
@@ -312,10 +376,13 @@ def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
     client = _Client(args, feed.prior)
     try:
         client.wait_for_node()
-        reset = client.reset_node()
+        record.node_name, record.sent_topic = client.node_name, client.scan_pub.topic_name
         before = client.diagnostics_after(client.diagnostics_count)
-        if not args.quiet and not reset:
-            print(f'--live: could not call /{args.node_name}/reset; the node keeps its pose')
+        # A fresh node starts at the origin: a reset would only say so in its log.
+        if before is None or _count(before, 'scans in') > 0:
+            if not client.reset_node() and not args.quiet:
+                print(f'--live: could not call {client.node_name}/reset; the node keeps its '
+                      'pose')
         try:
             if getattr(args, 'rate', None) is None:
                 _run_lock_step(client, scans, feed, record, args)

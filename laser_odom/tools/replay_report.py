@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from laser_odom.core.metrics import associate, distance_travelled, evaluate
+from laser_odom.core.coverage import reference_coverage
+from laser_odom.core.metrics import distance_travelled, evaluate
 from laser_odom.core.pipeline import OUTCOMES
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_writer import write_message_bag
@@ -18,8 +19,9 @@ from laser_odom.io.tum import read_tum, TumFormatError, write_tum
 
 
 DEFAULT_MIN_COVERAGE = 0.5
-"""Least fraction of the estimated poses a ``--reference`` must pair with
-(``--min-coverage``): an ATE over a few shared stamps says nothing about the run."""
+"""Least share of the run's duration a ``--reference`` must cover (``--min-coverage``,
+judged by time span: :mod:`laser_odom.core.coverage`): an ATE over a few shared stamps
+says nothing about the run."""
 
 
 class ReplayError(Exception):
@@ -46,6 +48,21 @@ class ReplayRecord:
     ``latency_p95_ms`` as text); empty when no report came."""
     late: float = 0.0
     """``--live --rate``: the most [s] a scan was published after its time."""
+    after_last: int = 0
+    """``--live --rate``: scans sent after the last one the node answered (it never saw
+    them, so its diagnostics cannot count them)."""
+    node_name: str = ''
+    sent_topic: str = ''
+    """``--live``: the node driven and the topic its scans went to."""
+    scans_in_bag: int | None = None
+    """The scan topic's message count by the bag's index (None: unknown)."""
+    interrupted: bool = False
+    """The run was stopped by Ctrl-C: the outputs hold the scans processed until then."""
+    stop: Any = None
+    """The Ctrl-C request checked after each scan (:mod:`laser_odom.tools.stopping`)."""
+    prior: str = 'none'
+    max_scan_gap: float = 0.0
+    """The motion prior and ``max_scan_gap`` the run used (offline)."""
     messages: Any = None
     """The node's serialised messages for ``--output-bag`` (a ``MessageRecorder``)."""
 
@@ -92,33 +109,80 @@ def summary_lines(record: ReplayRecord, topic: str, matcher: str | None) -> list
     """Return the run summary: scan counts by outcome and the time per scan."""
     processed = len(record.statuses)
     skipped = record.scans_read - processed
+    lines = _interruption_lines(record)
     if record.live:
         counts = record.counters
         failed = counts.get('rejected', 'n/a')
         degenerate = counts.get('degenerate', 'n/a')
-        how = ('sent to the live node' if record.rate is None else
-               f'played to the live node at {record.rate:g}x their recorded rate')
-        lines = [f'scans {record.scans_read} of {topic} {how}: odometry '
-                 f'received for {processed}, failed (rejected) {failed}, degenerate '
-                 f'{degenerate} (from its diagnostics), no answer {counts.get("no_answer", 0)}']
+        where = f'{record.node_name or "the live node"}'
+        if record.sent_topic:
+            where += f' on {record.sent_topic}'
+        how = (f'sent to {where}' if record.rate is None else
+               f'played to {where} at {record.rate:g}x their recorded rate')
+        lines += [f'scans {record.scans_read} of {topic} {how}: odometry '
+                  f'received for {processed}, failed (rejected) {failed}, degenerate '
+                  f'{degenerate} (from its diagnostics), no answer {counts.get("no_answer", 0)}']
         lines += _node_lines(record)
     else:
         statuses = Counter(record.statuses)
-        lines = [f'scans {record.scans_read} from {topic} ({matcher}): processed {processed}, '
-                 f'matched {statuses["matched"]}, degenerate {statuses["degenerate"]}, '
-                 f'failed (rejected) {statuses["rejected"]}, skipped {skipped}']
+        lines += [f'scans {record.scans_read} from {topic} ({matcher}): processed {processed}, '
+                  f'matched {statuses["matched"]}, degenerate {statuses["degenerate"]}, '
+                  f'failed (rejected) {statuses["rejected"]}, skipped {skipped}']
         reasons = {k: v for k, v in sorted(record.counters.items())
                    if v and k not in OUTCOMES}
         if reasons:
             lines.append('counters: ' + ', '.join(f'{k} {v}' for k, v in reasons.items()))
+        lines += _prior_lines(record, statuses)
     label = 'round-trip latency per scan' if record.live else 'processing time per scan'
     lines.append(f'{label}: {_milliseconds(record.times)}')
     lines.append(f'estimated path length {distance_travelled(record.trajectory()):.2f} m')
     return lines
 
 
+def _interruption_lines(record: ReplayRecord) -> list[str]:
+    """Return the line that says the run was cut short (Ctrl-C), first in the summary."""
+    if not record.interrupted:
+        return []
+    total = (f' of the {record.scans_in_bag} in the bag' if record.scans_in_bag is not None
+             else '')
+    return [f'INTERRUPTED (Ctrl-C) after {record.scans_read} scans{total}: the figures '
+            'and outputs cover only the scans before it']
+
+
+def _prior_lines(record: ReplayRecord, statuses: Counter) -> list[str]:
+    """Return how often the motion prior predicted a match, and why it did not.
+
+    A prior dropped on most steps (scans further apart than ``max_scan_gap``) changes
+    nothing, which the ATE alone does not tell.
+    """
+    if record.prior == 'none':
+        return []
+    matches = statuses['matched'] + statuses['degenerate'] + statuses['rejected']
+    gaps = record.counters.get('scan_gap', 0)
+    missing = record.counters.get('prior_missing', 0)
+    used = max(matches - gaps - missing, 0)
+    line = (f'motion prior {record.prior}: predicted {used} of {matches} matches; dropped '
+            f'on {gaps} (longer than max_scan_gap {record.max_scan_gap:g} s between scans)')
+    if record.prior in ('odom', 'imu'):
+        line += f', missing on {missing}'
+    lines = [line]
+    if matches and gaps > matches / 2:
+        gap = float(np.median(np.diff(record.stamps_ns))) * 1e-9
+        lines.append(f'note: the scans are a median {gap:.2f} s apart, so the prior was '
+                     f'dropped on most steps: raise max_scan_gap above {gap:.2f} s to predict '
+                     'over such gaps' + ('' if record.prior == 'odom' else
+                                         ', or use the wheel odometry (--prior odom)'))
+    return lines
+
+
 def _node_lines(record: ReplayRecord) -> list[str]:
-    """Return what the live node said about this run in its diagnostics."""
+    """Return what the live node said about this run in its diagnostics.
+
+    With ``--rate`` every scan sent is accounted for: answered, not processed because
+    the node was busy, dropped before reaching it, sent after the last one it took (it
+    never saw them, so it cannot count them), or - should the rest not add up - not
+    explained.
+    """
     node = record.node
     lines = []
     if record.late > 0.05:
@@ -127,37 +191,50 @@ def _node_lines(record: ReplayRecord) -> list[str]:
     if not node:
         return lines + ['node diagnostics: no report received (processed and skipped '
                         'scans unknown)']
-    return lines + [
+    prior = (f'; motion prior {record.prior} missing or stale on {node["prior_missing"]} '
+             'scans' if record.prior in ('odom', 'imu') and 'prior_missing' in node else '')
+    lines.append(
         f'node (its /diagnostics, this run): received {node["received"]}, processed '
         f'{node["processed"]}, skipped {node["busy"]} (not processed because the node was '
         f'busy), dropped {node["dropped"]} (before reaching the node); latency receipt -> '
         f'publish median {node["latency_median_ms"]} ms, p95 {node["latency_p95_ms"]} ms '
-        '(its recent scans)']
+        f'(its recent scans){prior}')
+    if record.rate is not None:
+        lines.append(_accounting_line(record))
+    return lines
 
 
-def _percent(part: int, whole: int) -> str:
-    """Return ``part`` as a rounded percentage of ``whole`` ('0' for no whole)."""
-    return f'{100.0 * part / whole:.0f}' if whole else '0'
+def _accounting_line(record: ReplayRecord) -> str:
+    """Return where every scan sent at ``--rate`` went; the parts add up to the scans sent."""
+    node = record.node
+    answered = len(record.stamps_ns)
+    sent = answered + record.counters.get('no_answer', 0)
+    unexplained = sent - answered - node['busy'] - node['dropped'] - record.after_last
+    parts = [f'{answered} answered', f'{node["busy"]} skipped by the busy node',
+             f'{node["dropped"]} dropped before reaching it',
+             f'{record.after_last} sent after the last one it took (never seen by it)']
+    if unexplained:
+        parts.append(f'{unexplained} not explained (answers lost, or scans it skipped as '
+                     'invalid)')
+    return f'scans sent {sent} = ' + ' + '.join(parts)
 
 
 def check_coverage(record: ReplayRecord, reference_path: Any, reference: Trajectory,
                    min_coverage: float) -> str:
-    """Return the line saying how many estimated poses the reference pairs with.
+    """Return the line saying how much of the run the reference covers.
 
-    Raises :class:`ReplayError` when that is less than ``min_coverage`` of them (a
-    reference of another run, another clock, or a few keyframes only).
+    Coverage is judged by time span (:mod:`laser_odom.core.coverage`): a reference of
+    keyframes that spans the run covers it. Raises :class:`ReplayError` when it covers
+    less than ``min_coverage`` of the run's duration (a reference of another run,
+    another clock, or one that stops early).
     """
-    estimate = record.trajectory()
-    total = len(estimate)
-    paired = len(associate(estimate, reference)[0])
-    if total == 0 and min_coverage > 0.0:
+    coverage = reference_coverage(np.asarray(record.stamps_ns, dtype=np.int64), reference)
+    if coverage.total == 0 and min_coverage > 0.0:
         raise ReplayError(f'no estimated poses to compare with reference {reference_path}')
-    if paired < min_coverage * total:
-        raise ReplayError(f'reference {reference_path} covers only {paired} of {total} poses '
-                          f'({_percent(paired, total)} %) - below --min-coverage '
-                          f'{min_coverage:g}')
-    return (f'reference {reference_path}: {paired} of {total} poses paired '
-            f'({_percent(paired, total)} %)')
+    if coverage.fraction < min_coverage:
+        raise ReplayError(f'reference {reference_path}: {coverage.shortfall()} - below '
+                          f'--min-coverage {min_coverage:g}')
+    return f'reference {reference_path}: {coverage.describe()}'
 
 
 def read_reference(reference_path: Any) -> Trajectory:
@@ -187,11 +264,12 @@ def reference_lines(record: ReplayRecord, reference_path: Any,
 
 
 def print_summary(record: ReplayRecord, args: argparse.Namespace, topic: str,
-                  matcher: str | None) -> None:
+                  matcher: str | None, reference: Trajectory | None = None) -> None:
     """Print the summary (and the reference metrics with ``--reference``) to stdout.
 
-    Raises :class:`ReplayError` when the reference cannot be compared or covers less
-    than ``--min-coverage`` of the estimated poses (after the summary is printed).
+    ``reference`` is the ``--reference`` already read (else it is read here). Raises
+    :class:`ReplayError` when the reference cannot be compared or covers less than
+    ``--min-coverage`` of the run (after the summary is printed).
     """
     for line in summary_lines(record, topic, matcher):
         print(line)
@@ -200,7 +278,8 @@ def print_summary(record: ReplayRecord, args: argparse.Namespace, topic: str,
         return
     min_coverage = float(getattr(args, 'min_coverage', DEFAULT_MIN_COVERAGE))
     try:
-        reference = read_reference(args.reference)
+        if reference is None:
+            reference = read_reference(args.reference)
         print(check_coverage(record, args.reference, reference, min_coverage))
         lines = reference_lines(record, args.reference, reference) if record.stamps_ns else []
     except ValueError as err:

@@ -71,8 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help='reference-free: add WEIGHT x disagreement with wheel odometry')
     p.add_argument('--min-coverage', type=number_in(float, 0.0, 1.0, what='number'),
                    default=DEFAULT_MIN_COVERAGE, metavar='FRACTION',
-                   help='least fraction of the scans of a bag that the reference must pair '
-                   f'with (default {DEFAULT_MIN_COVERAGE:g})')
+                   help="least fraction of a bag's duration the reference must cover, "
+                   'judged by time span as laser_odom_replay judges it: a keyframe reference '
+                   f'that spans the bag covers it (default {DEFAULT_MIN_COVERAGE:g})')
     p.add_argument('--params-file', type=Path, help='starting params file (trial 0)')
     p.add_argument('--space', type=Path, help='YAML of ranges: name: [low, high] or '
                    '[choice, ...]')
