@@ -156,10 +156,10 @@ def test_live_table_says_busy_and_dropped_in_the_diagnostics_wording():
     row = LiveRow('nicp', 2400, 1800, 600, 9.1, 20.2, 11.0, 25.0, busy=590, dropped=10,
                   cpu_percent=17.25, process_median_ms=1.25, ready_s=1.5, first_ms=40.0)
     header, values = format_live([row], 1081, 40.0, 60.0).splitlines()[1:3]
-    assert header.split()[:7] == ['matcher', 'sent', 'processed', 'no', 'answer', 'busy',
-                                  'dropped']
+    assert header.split()[:8] == ['matcher', 'reference', 'sent', 'processed', 'no', 'answer',
+                                  'busy', 'dropped']
     assert header.split()[-8:] == ['proc', 'ms', 'CPU', '%', 'ready', 's', 'first', 'ms']
-    assert values.split()[:6] == ['nicp', '2400', '1800', '600', '590', '10']
+    assert values.split()[:7] == ['nicp', 'scan', '2400', '1800', '600', '590', '10']
     assert values.split()[-4:] == ['1.25', '17.2', '1.50', '40.0']
     legend = format_live([row], 1081, 40.0, 60.0)
     assert 'busy: scans not processed because the node was busy' in legend

@@ -234,7 +234,7 @@ def test_figures_tool_says_what_is_missing(tmp_path, capsys):
     assert main(['--json', str(tmp_path / 'bad.json')]) == 2
     assert capsys.readouterr().err.strip() == (
         'figures: error: the benchmark result has no icp row on fr079 (constant_velocity '
-        'prior): run make figures')
+        'prior, reference scan): run make figures')
     for relative in ('README.md', 'docs/benchmark.md', 'docs/node.md', 'config/icp.yaml',
                      'config/plicp.yaml', 'config/nicp.yaml', 'config/imls.yaml'):
         (tmp_path / relative).parent.mkdir(exist_ok=True)
