@@ -150,7 +150,31 @@ def replace_between(text: str, markers: tuple[str, str], body: str, where: str) 
     return f'{head}{begin}\n{body}{end}{tail}'
 
 
-BLOCKS = {'table': readme_table, 'speed': speed_sentence, 'nees': nees_sentence}
+def map_table(payload: Mapping[str, Any]) -> str:
+    """Markdown table: scan to scan -> local map, per matcher and log, and the time cost.
+
+    Each cell holds the drift over 50 m of path (% of the path) and the ATE (m) in
+    both modes; the last column the median time per scan on fr079 in both.
+    """
+    lines = ['| matcher | ' + ' | '.join(f'{name}: drift %, ATE m' for name, _ in REAL_LOGS)
+             + f' | {TIMING_DATASETS[0]}: ms per scan |',
+             '|---|' + '---|' * (len(REAL_LOGS) + 1)]
+    for matcher in MATCHERS:
+        cells = []
+        for name, _ in REAL_LOGS:
+            scan, mapped = (figure(payload, name, matcher, reference)
+                            for reference in ('scan', 'local_map'))
+            cells.append(f'{scan["drift_trans"]:.2f} -> {mapped["drift_trans"]:.2f}, '
+                         f'{scan["ate"]:.2f} -> {mapped["ate"]:.2f}')
+        scan, mapped = (figure(payload, TIMING_DATASETS[0], matcher, reference)
+                        for reference in ('scan', 'local_map'))
+        cells.append(f'{scan["median_ms"]:.1f} -> {mapped["median_ms"]:.1f}')
+        lines.append(f'| `{matcher}` | ' + ' | '.join(cells) + ' |')
+    return '\n'.join(lines) + '\n'
+
+
+BLOCKS = {'table': readme_table, 'speed': speed_sentence, 'nees': nees_sentence,
+          'map': map_table}
 """Every figure block, by name: its renderer from the benchmark result."""
 
 
