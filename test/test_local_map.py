@@ -222,3 +222,21 @@ def test_the_map_never_holds_more_cells_than_its_budget(max_cells):
         local_map.insert(scan_points(ROOM, pose, noise=0.02, seed=k), pose, SENSOR, BIN)
         assert len(local_map) <= max_cells
     assert local_map.nbytes == LocalMap(geometry(max_cells=max_cells)).nbytes
+
+
+def test_a_cleared_map_is_a_fresh_one():
+    used, fresh = LocalMap(geometry(max_cells=2000)), LocalMap(geometry(max_cells=2000))
+    for k in range(5):
+        pose = se2.pose(0.3 * k, 0.1, 0.1 * k)
+        used.insert(scan_points(ROOM, pose, noise=0.01, seed=k), pose, SENSOR, BIN)
+    used.clear()
+    assert len(used) == 0
+    pose = se2.pose(-1.0, 0.5, 2.0)
+    for local_map in (used, fresh):
+        local_map.insert(scan_points(ROOM, pose, noise=0.01, seed=9), pose, SENSOR, BIN)
+    (used_means, used_weights), (fresh_means, fresh_weights) = (
+        m.cell_means() for m in (used, fresh))
+    order_used, order_fresh = np.lexsort(used_means.T), np.lexsort(fresh_means.T)
+    assert np.allclose(used_means[order_used], fresh_means[order_fresh])
+    assert np.allclose(used_weights[order_used], fresh_weights[order_fresh])
+    assert np.allclose(*(np.sort(view_ranges(m, pose)[1]) for m in (used, fresh)))

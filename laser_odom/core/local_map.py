@@ -70,8 +70,15 @@ class LocalMap:
         self._refreshes = 0
 
     def clear(self) -> None:
-        """Forget every cell."""
-        self.__init__(self.geometry)
+        """Forget every cell (in place: the tables are kept, so memory stays flat)."""
+        self._floats.fill(0.0)
+        self._ints.fill(0)
+        self._slot_keys.fill(EMPTY)
+        self._slot_cells.fill(0)
+        self._free[:] = np.arange(len(self._free) - 1, -1, -1, dtype=np.int64)
+        self._free_count[0] = len(self._free)
+        self.insertions = 0
+        self._refreshes = 0
 
     def __len__(self) -> int:
         """Return the number of cells in use."""
