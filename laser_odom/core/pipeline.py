@@ -313,11 +313,12 @@ class OdometryPipeline:
             # on the prediction. The next match starts from rest, untrusted.
             self.motion.reset()
             self.untrusted = 'rejected'
-        elif untrusted and registration.alternatives:
-            # Poses that fit alike with no prediction to choose among them (the first
-            # match in a featureless corridor): the step taken is one of them, not a
-            # measured motion, and a velocity from it would carry the guess on for good.
-            self.motion.reset()
+        elif registration.alternatives:
+            # Poses that fit alike (a featureless corridor): the step taken is one of
+            # them, not a measured motion, and a velocity from it would carry the pick on
+            # for good. The velocity stays that of the prediction (none if untrusted).
+            if untrusted:
+                self.motion.reset()
             judged.registrar.accepted(registration.match)
             self.untrusted = ''
         else:
