@@ -17,7 +17,8 @@ from laser_odom.core import se2
 from laser_odom.core.config import (
     GlobalSearchConfig, MountingConfig, PipelineConfig, ScanConfig)
 from laser_odom.core.consistency import (
-    Consistency, NO_REFERENCE_NOISE, ReferenceNoise, run_consistency, WINDOWS)
+    Consistency, failed_steps, FailedSteps, NO_REFERENCE_NOISE, ReferenceNoise,
+    run_consistency, WINDOWS)
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
 from laser_odom.core.metrics import evaluate
@@ -191,6 +192,11 @@ class BenchRow:
     """Noise of each reference pose that the NEES accounts for, in x and in y [m]."""
     reference_noise_deg: float = 0.0
     """Noise of each reference pose that the NEES accounts for, in heading [deg]."""
+    announced: int | None = None
+    """Failed steps whose published step covariance covered them (NEES within the
+    99.9 % bound, :mod:`laser_odom.core.consistency`); None without a reference."""
+    silent: int | None = None
+    """Failed steps it did not cover: a filter fusing the odometry takes them as truth."""
 
     def as_dict(self) -> dict:
         """Return the row as a JSON-friendly dict."""
@@ -223,7 +229,8 @@ def _accuracy(estimate: Trajectory, reference: Trajectory) -> Accuracy:
 
 def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Trajectory,
          times: np.ndarray, rejected: int, consistency: Consistency | None = None,
-         noise: ReferenceNoise = NO_REFERENCE_NOISE) -> BenchRow:
+         noise: ReferenceNoise = NO_REFERENCE_NOISE,
+         failures: FailedSteps | None = None) -> BenchRow:
     """Score an estimated trajectory against the dataset's reference (if it has one)."""
     timed = times[WARMUP_SCANS:] if times.size > 2 * WARMUP_SCANS else times
     median_ms = float(np.median(timed) * 1e3) if timed.size else float('nan')
@@ -237,6 +244,8 @@ def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Traj
         row.nees_integrated = consistency.integrated
         row.reference_noise_m = noise.translation
         row.reference_noise_deg = math.degrees(noise.rotation)
+    if failures is not None:
+        row.announced, row.silent = failures.announced, failures.silent
     return row
 
 
@@ -276,9 +285,11 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
     result = run_pipeline(pipeline, dataset.scans, priors=feed, progress=progress)
     consistency = _consistency(result, dataset.reference,
                                StepErrorModel.of(pipeline.matcher.config), reference_noise)
+    failures = None if consistency is None else failed_steps(
+        result.trajectory, result.step_covariances, dataset.reference, reference_noise)
     return _row(dataset, matcher, prior, config.scan.deskew, result.trajectory,
                 result.processing_times, result.counters['rejected'], consistency,
-                reference_noise)
+                reference_noise, failures)
 
 
 def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:

@@ -20,7 +20,7 @@ COLUMNS = [
     ('steps', 5, None, 'steps'),
     ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
     ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
-    ('ate', 7, 3, 'ATE'), ('failed', 6, None, 'failed'),
+    ('ate', 7, 3, 'ATE'), ('failed', 6, None, 'failed'), ('silent', 6, None, 'silent'),
     ('median_ms', 7, 2, 'med ms'), ('p95_ms', 7, 2, 'p95 ms'),
 ]
 """Table columns: row field, width, decimals (None: as is), title."""
@@ -90,7 +90,9 @@ def format_table(rows: Sequence[BenchRow]) -> str:
                        and row.matcher != WHEEL_ODOMETRY})
     return '\n'.join(_columns(rows, COLUMNS, 4) + [
         '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
-        'alignment; failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
+        'alignment; failed: RPE > 0.5 m or > 10 deg; silent: failed steps that the '
+        'published step covariance did not cover (NEES e^T (S + 2R)^-1 e above 16.27, the '
+        '99.9 % bound; the others were announced); deskew: the pipeline setting '
         '(auto: on when the scans have a time_increment)'] + (
         [f'# n/a: no reference for {", ".join(unscored)} (--bag without --reference or '
          f'{BAG_GROUND_TRUTH}): timed only'] if unscored else []))
