@@ -24,7 +24,7 @@ from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
 from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
 from laser_odom.core.registration import (
-    Registrar, Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS)
+    EVIDENCE_EVENTS, Registrar, Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS)
 from laser_odom.core.scan import LaserScan, ScanPoints
 from laser_odom.core.validation import REJECTIONS, ScanValidator
 
@@ -36,7 +36,8 @@ OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 're
 rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
 
 EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
-    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + tuple(DESKEW_EVENTS)
+    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + EVIDENCE_EVENTS + tuple(
+    DESKEW_EVENTS)
 """Counters of events that do not skip the scan: a missing or dropped prior, a clock
 jump, an ambiguous match, each reason the global search ran, and sweep timing that
 was repaired or ignored."""
@@ -345,6 +346,7 @@ class OdometryPipeline:
             self.events.warn('ambiguous', f'match at {at} is ambiguous: '
                              f'{registration.describe_alternatives()}; reported degenerate '
                              'with a covariance that covers the alternatives')
+        self.registrar.tell(registration, verdict.status, at)
 
     def _keyframe_expired(self, keyframe_to_current: se2.Pose) -> bool:
         """Tell whether the current scan becomes the new reference."""

@@ -27,11 +27,13 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.acceptance import (
     correction_from, describe_rejection, rejection_reason, searched_rejection_reason)
+from laser_odom.core.blind_prior import Prediction, StepHistory
 from laser_odom.core.config import PipelineConfig
 from laser_odom.core.events import EventLog
+from laser_odom.core.evidence import surface_covariance
 from laser_odom.core.matchers import MatchResult, ScanMatcher
 from laser_odom.core.scan import ScanPoints
-from laser_odom.core.search import correlative_search, SearchResult
+from laser_odom.core.search import correlative_search, SearchResult, SearchWindow
 from laser_odom.core.search.correlative import KEEP_RATIO, pose_distance, search_points
 
 SEARCH_TRIGGERS = {
@@ -44,8 +46,26 @@ SEARCH_TRIGGERS = {
 }
 """Why the global search ran, by trigger name (counted as ``search_<trigger>``)."""
 
+PREDICTION_SOURCES = {'prior': 'the prediction (the prior)',
+                      'last_step': "the last well-constrained step's motion (steady rate)"}
+"""What stood in for a blind direction, by :attr:`.Prediction.source`."""
+
+EVIDENCE_EVENTS = ('weakly_constrained', 'poor_fit', 'prediction_used', 'search_widened')
+"""Counted events of the evidence a match had: its covariance grew along a direction
+the scan hardly constrains (``weakly_constrained``) or, as no searched pose fitted
+well, to the whole window (``poor_fit``); the window was searched again twice as wide
+(``search_widened``)."""
+
+WEAK_FLAGS = ('weak', 'ambiguous', 'poor_fit', 'predicted')
+"""Extras of a match that was not well constrained (:mod:`laser_odom.core.acceptance`)."""
+
 ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always')
 """Triggers that are how the odometry is meant to run: counted, not warned about."""
+
+SURFACE_SPAN = 4.6
+"""The search keeps every pose whose likelihood is at least exp(-4.6) = 1 % of the best's
+(besides those within ``KEEP_RATIO`` of the best score): the rest weighs nothing in the
+spread of the score surface (:mod:`laser_odom.core.evidence`)."""
 
 RESIDUAL_WINDOW = 50
 """Accepted matches whose fit makes the usual level (the medians)."""
@@ -106,6 +126,14 @@ class Registration:
     alternatives: list[tuple[np.ndarray, float]] = field(default_factory=list)
     candidates: int = 0
     trusted: bool = True
+    window: SearchWindow | None = None
+    """The window searched (grown with the time since the last good match, and once
+    more when the best pose lay at its edge or fitted poorly); None when no search ran."""
+    widened: bool = False
+    """Whether the window was searched a second time, twice as wide."""
+    prediction: Prediction | None = None
+    """What stands in where the scan is blind (:mod:`laser_odom.core.blind_prior`): the
+    trusted guess, or with no trusted guess the last well-constrained step's motion."""
 
     @property
     def searched(self) -> bool:
@@ -120,7 +148,11 @@ class Registration:
             return f'none of {self.candidates} refined candidates converged'
         linear, angular = correction_from(guess, self.match.pose)
         fit = self.match.extra.get('surface_fit', float('nan'))
-        return (f'best of {self.candidates} refined candidates: {linear:.2f} m / '
+        window = self.window
+        wide = '' if window is None else (
+            f' in a window of +-{window.linear:.1f} m / +-{math.degrees(window.angular):.0f} deg'
+            + (', searched again twice as wide' if self.widened else ''))
+        return (f'best of {self.candidates} refined candidates{wide}: {linear:.2f} m / '
                 f'{math.degrees(angular):.1f} deg from the prediction, fit {fit:.2f} '
                 f'(search score {self.search.best.score:.2f})')
 
@@ -156,6 +188,30 @@ class Registrar:
         """Create the registrar; matcher errors are reported to ``events``."""
         self.events = events
         self.usual = UsualLevel()
+        self.lost_since_ns: int | None = None
+        """Stamp of the reference of the first match not accepted since the last good
+        match (None while matches are accepted)."""
+        self._started_ns: int | None = None
+        """The reference stamp a registration started from, until it is accepted."""
+        self.elapsed_s = 0.0
+        """Seconds from the last good match to the scan being registered."""
+        self.history = StepHistory()
+        self._stamps = (0, 0)
+        """Stamps of the reference and the current scan being registered."""
+
+    def elapsed(self, reference: ScanPoints, current: ScanPoints) -> float:
+        """Return the seconds since the last good match: the window grows with them.
+
+        That is the time since the reference scan, or since the reference of the
+        first match that was not accepted after the last good one (the pipeline calls
+        :meth:`accepted` for every accepted match).
+        """
+        if self._started_ns is not None:  # the previous registration was not accepted
+            self.lost_since_ns = self._started_ns
+        start = reference.stamp_ns if self.lost_since_ns is None else min(
+            self.lost_since_ns, reference.stamp_ns)
+        self._started_ns = start
+        return max(0.0, (current.stamp_ns - start) * 1e-9)
 
     def register(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                  guess: se2.Pose, config: PipelineConfig, untrusted: str) -> Registration:
@@ -163,25 +219,73 @@ class Registrar:
 
         ``untrusted`` names why the prediction cannot be trusted ('' when it can).
         """
+        self.elapsed_s = self.elapsed(reference, current)
+        self._stamps = (reference.stamp_ns, current.stamp_ns)
+        prediction = self.predict(guess, untrusted, reference, current)
         mode = config.search.global_search
         if mode == 'always' or (mode == 'recover' and untrusted):
             local = self.local_match(matcher, reference, current, guess) \
                 if mode == 'always' else None
-            return self._search(matcher, reference, current, guess, config,
-                                'always' if mode == 'always' else untrusted, local, '',
-                                trusted=not untrusted)
-        local = self.local_match(matcher, reference, current, guess)
-        failure = self.local_failure(local, guess, config)
-        if failure and mode == 'recover':
             registration = self._search(matcher, reference, current, guess, config,
-                                        'local_failed', local, failure, trusted=True)
-            registration.failure_detail = self.describe_failure(failure, local, guess, config)
-            return registration
-        return Registration(local, local_failure=failure)
+                                        'always' if mode == 'always' else untrusted, local,
+                                        '', not untrusted, prediction)
+        else:
+            local = self.local_match(matcher, reference, current, guess)
+            failure = self.local_failure(local, guess, config)
+            if failure and mode == 'recover':
+                registration = self._search(matcher, reference, current, guess, config,
+                                            'local_failed', local, failure, True, prediction)
+                registration.failure_detail = self.describe_failure(failure, local, guess,
+                                                                    config)
+            else:
+                registration = Registration(local, local_failure=failure)
+        registration.prediction = prediction
+        return registration
+
+    def predict(self, guess: se2.Pose, untrusted: str, reference: ScanPoints,
+                current: ScanPoints) -> Prediction | None:
+        """Return what stands in where the scan is blind, with its measured error.
+
+        The trusted guess, or, when it is not trusted, the last well-constrained step's
+        motion if the scans come at a steady rate; None without enough history.
+        """
+        if not untrusted:
+            covariance = self.history.covariance(self.elapsed_s)
+            return None if covariance is None else Prediction(
+                np.array(guess, dtype=float), covariance, 'prior')
+        return self.history.last_step(reference.stamp_ns, current.stamp_ns)
+
+    def tell(self, registration: Registration, status: str, at: str) -> None:
+        """Count and say (throttled) what the evidence made of an integrated match."""
+        match = registration.match
+        if registration.widened:
+            self.events.count('search_widened')
+        if status != 'rejected' and match.extra.get('predicted'):
+            self.events.warn('prediction_used', f'match at {at} is blind along a direction; '
+                             f'{PREDICTION_SOURCES[match.extra["predicted"]]} stands in there, '
+                             'with its measured error as the covariance')
+        if status != 'rejected' and match.extra.get('poor_fit'):
+            window = registration.window
+            self.events.warn('poor_fit', f'match at {at} fits poorly (surface fit '
+                             f'{match.extra["surface_fit"]:.2f}, the best pose in '
+                             f'+-{window.linear:.1f} m / +-{math.degrees(window.angular):.0f}'
+                             ' deg): its covariance covers the window')
+        elif status != 'rejected' and match.extra.get('weak'):
+            sigma = np.sqrt(np.linalg.eigvalsh(match.extra['surface_covariance'])[-1])
+            self.events.warn('weakly_constrained', f'match at {at} is weakly constrained: '
+                             f'poses up to {sigma:.2f} m away (1 sigma) fit about as '
+                             'well; its covariance covers them')
 
     def accepted(self, match: MatchResult) -> None:
-        """Record an accepted match: its fit joins the scans' usual level."""
+        """Record an accepted match: its fit joins the scans' usual level.
+
+        A well-constrained one (not degenerate, weak, ambiguous or poorly fitting)
+        joins the step history the blind prediction is measured on.
+        """
         self.usual.add(match)
+        self.lost_since_ns = self._started_ns = None
+        well = not (match.degenerate or any(match.extra.get(flag) for flag in WEAK_FLAGS))
+        self.history.add(*self._stamps, match.pose, well)
 
     def local_failure(self, match: MatchResult, guess: se2.Pose,
                       config: PipelineConfig) -> str:
@@ -233,21 +337,79 @@ class Registrar:
 
     def _search(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                 guess: se2.Pose, config: PipelineConfig, trigger: str,
-                local: MatchResult | None, failure: str, trusted: bool) -> Registration:
-        """Search the window, refine the best poses, keep the candidate that fits best."""
-        search_config = config.search
-        window = search_config.window()
-        result = correlative_search(
-            reference, current, guess, window, search_config.global_search_candidates,
-            min(KEEP_RATIO, search_config.global_search_ambiguity))
-        candidates = [] if result is None else [
-            self.local_match(matcher, reference, current, peak.pose) for peak in result.peaks]
+                local: MatchResult | None, failure: str, trusted: bool,
+                prediction: Prediction | None) -> Registration:
+        """Search the window, refine the best poses, keep the candidate that fits best.
+
+        The window grows with the time since the last good match
+        (:meth:`.GlobalSearchConfig.window`); when the pose chosen lies at its edge or
+        fits poorly (``global_search_poor_fit``), it is searched again twice as wide
+        and the candidates of both searches compete.
+        """
+        window = config.search.window(self.elapsed_s)
+        result, candidates = self._refined_peaks(matcher, reference, current, guess,
+                                                 window, config)
         if local is not None:
             candidates.append(local)
+        registration = self._choose(reference, current, guess, config, window, result,
+                                    candidates, local, trusted, prediction)
+        registration.trigger, registration.local_failure = trigger, failure
+        wider = config.search.widened(window)
+        if wider is not None and self._search_further(registration, guess, config):
+            more_result, more = self._refined_peaks(matcher, reference, current, guess,
+                                                    wider, config)
+            widened = self._choose(reference, current, guess, config, wider,
+                                   more_result or result, candidates + more, local, trusted,
+                                   prediction)
+            widened.trigger, widened.local_failure = trigger, failure
+            widened.widened = True
+            registration = widened
+        return registration
+
+    def _refined_peaks(self, matcher: ScanMatcher, reference: ScanPoints,
+                       current: ScanPoints, guess: se2.Pose, window: SearchWindow,
+                       config: PipelineConfig
+                       ) -> tuple[SearchResult | None, list[MatchResult]]:
+        """Search ``window`` around ``guess``; return the result and its refined peaks."""
+        search_config = config.search
+        result = correlative_search(
+            reference, current, guess, window, search_config.global_search_candidates,
+            min(KEEP_RATIO, search_config.global_search_ambiguity),
+            SURFACE_SPAN / search_config.global_search_effective_points)
+        candidates = [] if result is None else [
+            self.local_match(matcher, reference, current, peak.pose) for peak in result.peaks]
+        return result, candidates
+
+    @staticmethod
+    def _search_further(registration: Registration, guess: se2.Pose,
+                        config: PipelineConfig) -> bool:
+        """Tell whether the best pose lies at the window's edge or fits poorly."""
+        match, window = registration.match, registration.window
+        if not match.converged or window is None:
+            return True
+        fit = match.extra.get('surface_fit', 0.0)
+        if fit < config.search.global_search_poor_fit:
+            return True
+        offset = np.asarray(match.pose, dtype=float) - guess
+        edge = max(abs(offset[0]), abs(offset[1])) >= window.linear - window.resolution
+        turned = abs(float(se2.wrap_angle(offset[2])))
+        return bool(edge or (window.angular < math.pi
+                             and turned >= window.angular - window.resolution))
+
+    def _choose(self, reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
+                config: PipelineConfig, window: SearchWindow, result: SearchResult | None,
+                candidates: list[MatchResult], local: MatchResult | None,
+                trusted: bool, prediction: Prediction | None) -> Registration:
+        """Judge the refined candidates by their surface fit; return the registration.
+
+        Among candidates that fit alike, the one nearest the trusted guess, or else the
+        blind prediction, is taken.
+        """
+        search_config = config.search
         converged = [m for m in candidates if m.converged and se2.is_finite_pose(m.pose)]
         registration = Registration(local if local is not None else MatchResult.failure(
-            guess, reason='search found nothing' if result is None else ''), trigger, failure,
-            search=result, candidates=len(candidates), trusted=trusted)
+            guess, reason='search found nothing' if result is None else ''),
+            search=result, candidates=len(candidates), trusted=trusted, window=window)
         if not converged:
             return registration
         # Candidates inside the window first: the window is the gate they are judged by.
@@ -260,11 +422,12 @@ class Registrar:
         separation = result.separation if result is not None else 3.0 * window.resolution
         ambiguity = search_config.global_search_ambiguity
         best = int(np.argmax(fits))
-        if trusted:
+        anchor = guess if trusted else (None if prediction is None else prediction.pose)
+        if anchor is not None:
             # Among poses the scans cannot tell apart, the one nearest a trusted
             # prediction is the best guess.
             alike = np.flatnonzero(fits >= ambiguity * fits[best])
-            near = pose_distance(np.array([pool[i].pose for i in alike]), guess, scale)
+            near = pose_distance(np.array([pool[i].pose for i in alike]), anchor, scale)
             best = int(alike[int(np.argmin(near))])
         if local is not None and any(m is local for m in pool) and \
                 pose_distance(local.pose, pool[best].pose, scale)[0] <= separation:
@@ -274,6 +437,10 @@ class Registrar:
         chosen = pool[best]
         chosen.extra['surface_fit'] = float(fits[best])
         chosen.extra['surface_overlap'] = float(overlaps[best])
+        if result is not None:
+            chosen.extra['surface_covariance'] = surface_covariance(
+                result.poses, result.scores, chosen.pose,
+                search_config.global_search_effective_points, window.resolution, scale)
         registration.match = chosen
         registration.alternatives = distinct_alternatives(
             pool, fits / max(float(fits[best]), 1e-12), chosen.pose, scale, separation,
