@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.blind_prior import fuse
+from laser_odom.core.blind_prior import Prediction
 from laser_odom.core.config import AcceptanceConfig, PipelineConfig
 from laser_odom.core.degeneracy import degenerate_directions, metric_scale
 from laser_odom.core.matchers import MatchResult
@@ -136,38 +136,39 @@ def judge_match(registration: Registration, guess: se2.Pose, config: PipelineCon
         reason = searched_rejection_reason(match, guess, config.acceptance, window)
     else:
         reason = rejection_reason(match, guess, config.acceptance)
+    prediction = registration.prediction
+    trusted = prediction if prediction is not None and prediction.source == 'prior' else None
     if reason is not None:
         match.extra['rejection'] = reason
         match.extra['window'] = window
-        pose = guess if config.acceptance.rejected_motion == 'predict' else se2.pose()
-        return MatchVerdict(np.array(pose, dtype=float), rejected_covariance(window),
-                            'rejected')
+        if config.acceptance.rejected_motion == 'predict':
+            # The step is the prediction, as uncertain as its measured error when it
+            # was trusted; else it is anywhere in the window.
+            covariance = (rejected_covariance(window) if trusted is None
+                          else trusted.covariance)
+            return MatchVerdict(np.array(guess, dtype=float), covariance, 'rejected')
+        return MatchVerdict(se2.pose(), rejected_covariance(window), 'rejected')
     # Along a direction the scene does not constrain the estimate keeps the prediction
     # - when there is one to trust. Otherwise the searched and refined pose is the best
     # estimate there is, and its covariance says how weak it is.
-    prediction = registration.prediction
     anchor = guess if registration.trusted else (
         match.pose if prediction is None else prediction.pose)
-    verdict = _degeneracy(match, anchor, config.acceptance, length_scale)
+    verdict = _degeneracy(match, anchor, config.acceptance, length_scale, prediction)
     verdict = _weakly_constrained(match, verdict, config.acceptance, length_scale)
-    if registration.searched and match.extra.get('surface_fit', 1.0) < \
-            config.search.global_search_poor_fit:
-        # Even the widened search found no pose that fits well: the scans cannot tell
-        # where the motion went, though the best guess stands.
-        match.extra['poor_fit'] = True
-        verdict = MatchVerdict(verdict.pose, verdict.covariance + rejected_covariance(window),
-                               'degenerate')
     if registration.alternatives:
         match.extra['ambiguous'] = True
         verdict = MatchVerdict(verdict.pose, covering_covariance(
             verdict.pose, verdict.covariance, [pose for pose, _ in registration.alternatives]),
             'degenerate')
-    if verdict.status == 'degenerate' and prediction is not None:
-        # Where the scan is blind the prediction is the better estimate, and its
-        # measured error the covariance (laser_odom.core.blind_prior).
-        match.extra['predicted'] = prediction.source
-        pose, covariance = fuse(verdict.pose, verdict.covariance, prediction)
-        verdict = MatchVerdict(pose, covariance, 'degenerate')
+    if registration.searched and match.extra.get('surface_fit', 1.0) < \
+            config.search.global_search_poor_fit:
+        # Even the widened search found no pose that fits well: the scans cannot tell
+        # where the motion went, though the best guess stands. It is anywhere in the
+        # window - or, with a trusted prediction, the prediction or the match.
+        match.extra['poor_fit'] = True
+        cover = rejected_covariance(window) if trusted is None else covering_covariance(
+            verdict.pose, trusted.covariance, [trusted.pose])
+        verdict = MatchVerdict(verdict.pose, verdict.covariance + cover, 'degenerate')
     return verdict
 
 
@@ -226,11 +227,12 @@ def covering_covariance(pose: se2.Pose, covariance: np.ndarray,
 
 
 def _degeneracy(match: MatchResult, anchor: se2.Pose, config: AcceptanceConfig,
-                length_scale: float) -> MatchVerdict:
+                length_scale: float, prediction: Prediction | None = None) -> MatchVerdict:
     """Keep a match, or its correction from ``anchor`` only along the directions it constrains.
 
     Along the weak directions the pose keeps ``anchor`` (the prediction) and a large
-    variance.
+    variance - or, when a prediction with a measured error stands in
+    (:mod:`laser_odom.core.blind_prior`), that error, when smaller.
     """
     values, vectors, weak = degenerate_directions(
         match.information, length_scale, config.degeneracy_min_information)
@@ -245,7 +247,13 @@ def _degeneracy(match: MatchResult, anchor: se2.Pose, config: AcceptanceConfig,
     strong = vectors[:, ~weak]
     pose = anchor + scale * (strong @ (strong.T @ (correction / scale)))
     pose[2] = se2.wrap_angle(pose[2])
-    variances = np.where(weak, DEGENERATE_VARIANCE, 1.0 / np.maximum(values, 1e-300))
+    blind = np.full(len(values), DEGENERATE_VARIANCE)
+    if prediction is not None:
+        # The prediction's variance along each weak direction, in metric units.
+        metric = prediction.covariance / scale[:, None] / scale[None, :]
+        blind = np.minimum(blind, np.einsum('ik,ij,jk->k', vectors, metric, vectors))
+        match.extra['predicted'] = prediction.source
+    variances = np.where(weak, blind, 1.0 / np.maximum(values, 1e-300))
     metric_covariance = (vectors * variances) @ vectors.T
     covariance = (metric_covariance * scale[:, None]) * scale[None, :]
     return MatchVerdict(pose, 0.5 * (covariance + covariance.T), 'degenerate')

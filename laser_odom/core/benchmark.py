@@ -6,6 +6,7 @@ The benchmark command, the real-data tests and the closing notes all use
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass, fields
 import math
 import time
@@ -290,6 +291,17 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
     return _row(dataset, matcher, prior, config.scan.deskew, result.trajectory,
                 result.processing_times, result.counters['rejected'], consistency,
                 reference_noise, failures)
+
+
+def simulated_scanner(config: PipelineConfig) -> PipelineConfig:
+    """Return ``config`` for the simulated scanner: exact but for its noise.
+
+    The heading walk of a real scanner (``covariance_heading_walk``, fitted to the
+    real logs; :mod:`laser_odom.core.pose_uncertainty`) is not there.
+    """
+    matcher_config = dataclasses.replace(config.resolved_matcher_config(),
+                                         covariance_heading_walk=0.0)
+    return dataclasses.replace(config, matcher_config=matcher_config)
 
 
 def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:

@@ -341,30 +341,42 @@ class Registrar:
                 prediction: Prediction | None) -> Registration:
         """Search the window, refine the best poses, keep the candidate that fits best.
 
-        The window grows with the time since the last good match
-        (:meth:`.GlobalSearchConfig.window`); when the pose chosen lies at its edge or
-        fits poorly (``global_search_poor_fit``), it is searched again twice as wide
-        and the candidates of both searches compete.
+        The configured window is searched first; then, when the robot can have gone
+        farther since the last good match (:meth:`.GlobalSearchConfig.window`), the
+        grown window; and when the pose chosen lies at the window's edge or fits
+        poorly (``global_search_poor_fit``), a window twice as wide. The candidates of
+        every search compete (a far pose must fit clearly better, :meth:`_choose`):
+        a grown window's far peaks would otherwise crowd the near solution out of the
+        few that are refined.
         """
-        window = config.search.window(self.elapsed_s)
-        result, candidates = self._refined_peaks(matcher, reference, current, guess,
-                                                 window, config)
-        if local is not None:
-            candidates.append(local)
-        registration = self._choose(reference, current, guess, config, window, result,
-                                    candidates, local, trusted, prediction)
-        registration.trigger, registration.local_failure = trigger, failure
-        wider = config.search.widened(window)
+        search = config.search
+        base, grown = search.window(), search.window(self.elapsed_s)
+        windows = [base] if grown == base else [base, grown]
+        candidates = [] if local is None else [local]
+        registration = None
+        for window in windows:
+            registration = self._round(matcher, reference, current, guess, config, window,
+                                       candidates, local, trusted, prediction, registration)
+        wider = search.widened(windows[-1])
         if wider is not None and self._search_further(registration, guess, config):
-            more_result, more = self._refined_peaks(matcher, reference, current, guess,
-                                                    wider, config)
-            widened = self._choose(reference, current, guess, config, wider,
-                                   more_result or result, candidates + more, local, trusted,
-                                   prediction)
-            widened.trigger, widened.local_failure = trigger, failure
-            widened.widened = True
-            registration = widened
+            registration = self._round(matcher, reference, current, guess, config, wider,
+                                       candidates, local, trusted, prediction, registration)
+            registration.widened = True
+        registration.trigger, registration.local_failure = trigger, failure
         return registration
+
+    def _round(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
+               guess: se2.Pose, config: PipelineConfig, window: SearchWindow,
+               candidates: list[MatchResult], local: MatchResult | None, trusted: bool,
+               prediction: Prediction | None, last: Registration | None) -> Registration:
+        """Search ``window``, add its refined peaks to ``candidates``, choose among all."""
+        result, refined = self._refined_peaks(matcher, reference, current, guess, window,
+                                              config)
+        candidates += refined
+        if result is None and last is not None:
+            result = last.search
+        return self._choose(reference, current, guess, config, window, result, candidates,
+                            local, trusted, prediction)
 
     def _refined_peaks(self, matcher: ScanMatcher, reference: ScanPoints,
                        current: ScanPoints, guess: se2.Pose, window: SearchWindow,
@@ -376,9 +388,10 @@ class Registrar:
             reference, current, guess, window, search_config.global_search_candidates,
             min(KEEP_RATIO, search_config.global_search_ambiguity),
             SURFACE_SPAN / search_config.global_search_effective_points)
-        candidates = [] if result is None else [
-            self.local_match(matcher, reference, current, peak.pose) for peak in result.peaks]
-        return result, candidates
+        if result is None:
+            return None, []
+        return result, [self.local_match(matcher, reference, current, peak.pose)
+                        for peak in result.peaks]
 
     @staticmethod
     def _search_further(registration: Registration, guess: se2.Pose,
@@ -412,22 +425,38 @@ class Registrar:
             search=result, candidates=len(candidates), trusted=trusted, window=window)
         if not converged:
             return registration
-        # Candidates inside the window first: the window is the gate they are judged by.
+        # Every candidate is measured on the reference surface, the same way whatever
+        # the matcher; those inside the window and on the surface enough compete first
+        # (the window is the gate they are judged by). A matcher's own inlier ratio
+        # would drop correct poses a metre away, where its pair gates cut.
+        points = search_points(current, window.resolution)
+        for m in converged:
+            m.extra['surface_fit'], m.extra['surface_overlap'] = surface_fit(
+                reference, points, m.pose, window.kernel_sigma)
         pool = [m for m in converged if searched_rejection_reason(
             m, guess, config.acceptance, window) is None] or converged
-        points = search_points(current, window.resolution)
-        fits, overlaps = np.array([surface_fit(reference, points, m.pose,
-                                               window.kernel_sigma) for m in pool]).T
+        fits = np.array([m.extra['surface_fit'] for m in pool])
         scale = result.length_scale if result is not None else current.length_scale
         separation = result.separation if result is not None else 3.0 * window.resolution
         ambiguity = search_config.global_search_ambiguity
-        best = int(np.argmax(fits))
+        # A pose beyond the configured window (found as the window grew) is a larger
+        # motion, less likely a priori: it must fit better by 1 / ambiguity to be
+        # preferred (poorly fitting scans otherwise find a far pose that fits a little
+        # better by chance).
+        base = search_config.window()
+        far = np.array([searched_rejection_reason(m, guess, config.acceptance, base)
+                        == 'outside_window' for m in pool])
+        weighed = np.where(far, ambiguity * fits, fits)
+        best = int(np.argmax(weighed))
         anchor = guess if trusted else (None if prediction is None else prediction.pose)
-        if anchor is not None:
+        if anchor is not None and (trusted or fits[best] >= search_config.global_search_poor_fit):
             # Among poses the scans cannot tell apart, the one nearest a trusted
-            # prediction is the best guess.
-            alike = np.flatnonzero(fits >= ambiguity * fits[best])
-            near = pose_distance(np.array([pool[i].pose for i in alike]), anchor, scale)
+            # prediction is the best guess (nearest the last step's translation: its
+            # turn is not predicted; and only among poses that fit well - a robot that
+            # reverses is not where it went before).
+            alike = np.flatnonzero(weighed >= ambiguity * weighed[best])
+            near = pose_distance(np.array([pool[i].pose for i in alike]), anchor,
+                                 scale if trusted else 0.0)
             best = int(alike[int(np.argmin(near))])
         if local is not None and any(m is local for m in pool) and \
                 pose_distance(local.pose, pool[best].pose, scale)[0] <= separation:
@@ -435,8 +464,6 @@ class Registrar:
             # from the prediction converged to the chosen solution, it stands.
             best = next(i for i, m in enumerate(pool) if m is local)
         chosen = pool[best]
-        chosen.extra['surface_fit'] = float(fits[best])
-        chosen.extra['surface_overlap'] = float(overlaps[best])
         if result is not None:
             chosen.extra['surface_covariance'] = surface_covariance(
                 result.poses, result.scores, chosen.pose,

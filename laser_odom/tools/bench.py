@@ -38,7 +38,8 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 
 from laser_odom.core.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    REAL_REFERENCE_NOISE, search_timing, SearchTimingRow, SIMULATED, wheel_odometry_row)
+    REAL_REFERENCE_NOISE, search_timing, SearchTimingRow, SIMULATED, simulated_scanner,
+    wheel_odometry_row)
 from laser_odom.core.config import pipeline_config_from_params
 from laser_odom.core.consistency import NO_REFERENCE_NOISE, ReferenceNoise
 from laser_odom.core.datasets import (
@@ -231,9 +232,14 @@ def reference_noise(args: argparse.Namespace, name: str) -> ReferenceNoise:
     Anything else (a real log's SLAM-corrected poses, a bag's reference) takes
     ``--reference-noise-m`` and ``--reference-noise-deg``.
     """
-    if name in SIMULATED or any(name in grid for grid in GRIDS.values()):
+    if simulated_here(name):
         return NO_REFERENCE_NOISE
     return ReferenceNoise.degrees(args.reference_noise_m, args.reference_noise_deg)
+
+
+def simulated_here(name: str) -> bool:
+    """Tell whether a dataset is simulated by the benchmark (truth as its reference)."""
+    return name in SIMULATED or any(name in grid for grid in GRIDS.values())
 
 
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
@@ -274,6 +280,8 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
                     label = f'{name} {matcher} {prior}' + (f' {deskew}' if deskew else '')
                     bar = ProgressBar(label, len(dataset.scans)) if progress else None
                     config = pipeline_config_from_params({**values, 'matcher': matcher})
+                    if simulated_here(name):
+                        config = simulated_scanner(config)
                     rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
                                               config=config, deskew=deskew,
                                               reference_noise=noise))
