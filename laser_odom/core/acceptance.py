@@ -151,8 +151,10 @@ def judge_match(registration: Registration, guess: se2.Pose, config: PipelineCon
     # Along a direction the scene does not constrain the estimate keeps the prediction
     # - when there is one to trust. Otherwise the searched and refined pose is the best
     # estimate there is, and its covariance says how weak it is.
-    anchor = guess if registration.trusted else (
-        match.pose if prediction is None else prediction.pose)
+    anchor = guess if registration.trusted else match.pose
+    if not registration.trusted and prediction is not None:
+        # The last step's translation; its turn is not predicted (blind_prior).
+        anchor = np.array([prediction.pose[0], prediction.pose[1], match.pose[2]])
     verdict = _degeneracy(match, anchor, config.acceptance, length_scale, prediction)
     verdict = _weakly_constrained(match, verdict, config.acceptance, length_scale)
     if registration.alternatives:

@@ -46,7 +46,8 @@ PIPELINE_PARAMETERS = (
 the global search."""
 
 NOT_SEARCHED = ('covariance_scale', 'covariance_shared_scan', 'covariance_bias',
-                'covariance_bias_correlation', 'covariance_baseline_falloff')
+                'covariance_bias_correlation', 'covariance_baseline_falloff',
+                'covariance_heading_walk')
 """Matcher parameters left out: they calibrate the covariance, not the pose."""
 
 RANGES: dict[str, tuple[float, float]] = {
