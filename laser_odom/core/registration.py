@@ -5,14 +5,14 @@ step after an accepted match) the matcher starts from it, and its result is chec
 converged, enough of the scan paired, a residual and an inlier ratio near their usual
 level, and a correction inside ``max_correction_*``. When the prediction cannot be trusted (the
 first match, a gap longer than ``max_scan_gap``, ``prior: none``, right after a
-rejection), or the local match failed one of those checks, the correlative search
-(:mod:`laser_odom.core.search`) scores the whole window around the prediction and the
-matcher refines its best few poses. The refined candidates, and the local match when
-it converged, are compared by one matcher-independent measure - how well the current
-points fall on the reference surface (:func:`surface_fit`) - so correct evidence far
-from a wrong prediction wins over it, and two distinct poses that fit alike are found
-and reported (a symmetric room, a featureless corridor) instead of one being taken
-silently.
+rejection), or the local match failed one of those checks, the global search
+(:mod:`laser_odom.core.recovery`) scores the windows around the prediction and the
+matcher refines their best few poses; the candidate whose points fit the reference
+surface best is chosen, and distinct poses that fit alike are reported (a symmetric
+room, a featureless corridor) instead of one being taken silently. The registrar also
+keeps what a match is judged against: the usual fit of recent matches, the time since
+the last good one (the window grows with it) and the steps the blind prediction is
+measured on (:mod:`laser_odom.core.blind_prior`).
 """
 
 from __future__ import annotations
@@ -25,16 +25,14 @@ import statistics
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.acceptance import (
-    correction_from, describe_rejection, rejection_reason, searched_rejection_reason)
+from laser_odom.core.acceptance import correction_from, describe_rejection, rejection_reason
 from laser_odom.core.blind_prior import Prediction, StepHistory
 from laser_odom.core.config import PipelineConfig
 from laser_odom.core.events import EventLog
-from laser_odom.core.evidence import surface_covariance
 from laser_odom.core.matchers import MatchResult, ScanMatcher
+from laser_odom.core.recovery import search_and_choose
 from laser_odom.core.scan import ScanPoints
-from laser_odom.core.search import correlative_search, SearchResult, SearchWindow
-from laser_odom.core.search.correlative import KEEP_RATIO, pose_distance, search_points
+from laser_odom.core.search import SearchResult, SearchWindow
 
 SEARCH_TRIGGERS = {
     'reset': 'first match after a start, reset or time jump: no prediction yet',
@@ -61,11 +59,6 @@ WEAK_FLAGS = ('weak', 'ambiguous', 'poor_fit', 'predicted')
 
 ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always')
 """Triggers that are how the odometry is meant to run: counted, not warned about."""
-
-SURFACE_SPAN = 4.6
-"""The search keeps every pose whose likelihood is at least exp(-4.6) = 1 % of the best's
-(besides those within ``KEEP_RATIO`` of the best score): the rest weighs nothing in the
-spread of the score surface (:mod:`laser_odom.core.evidence`)."""
 
 RESIDUAL_WINDOW = 50
 """Accepted matches whose fit makes the usual level (the medians)."""
@@ -162,23 +155,6 @@ class Registration:
         linear, angular = correction_from(self.match.pose, pose)
         return (f'a pose {linear:.2f} m / {math.degrees(angular):.1f} deg away fits '
                 f'{ratio:.0%} as well (featureless corridor or symmetric room?)')
-
-
-def surface_fit(reference: ScanPoints, points: np.ndarray, pose: se2.Pose,
-                sigma: float) -> tuple[float, float]:
-    """Return how well ``points`` moved by ``pose`` lie on the reference surface.
-
-    The fit is the mean of ``exp(-d^2 / 2 sigma^2)`` over the points, ``d`` each one's
-    distance to the nearest reference point - the search's likelihood, evaluated
-    exactly at a refined pose; the overlap is the fraction with ``d <= 2 sigma``. Both
-    compare candidates and judge matches whatever the matcher and its residual metric.
-    """
-    if len(points) == 0 or len(reference) == 0:
-        return 0.0, 0.0
-    distance, _ = reference.bearing_index.nearest(se2.transform_points(pose, points),
-                                                  4.0 * sigma)
-    fit = float(np.mean(np.exp(-0.5 * np.square(distance / sigma))))
-    return fit, float(np.mean(distance <= 2.0 * sigma))
 
 
 class Registrar:
@@ -339,154 +315,17 @@ class Registrar:
                 guess: se2.Pose, config: PipelineConfig, trigger: str,
                 local: MatchResult | None, failure: str, trusted: bool,
                 prediction: Prediction | None) -> Registration:
-        """Search the window, refine the best poses, keep the candidate that fits best.
+        """Search the windows, refine the best poses, keep the candidate that fits best.
 
-        The configured window is searched first; then, when the robot can have gone
-        farther since the last good match (:meth:`.GlobalSearchConfig.window`), the
-        grown window; and when the pose chosen lies at the window's edge or fits
-        poorly (``global_search_poor_fit``), a window twice as wide. The candidates of
-        every search compete (a far pose must fit clearly better, :meth:`_choose`):
-        a grown window's far peaks would otherwise crowd the near solution out of the
-        few that are refined.
+        :func:`.recovery.search_and_choose`; its refinements are :meth:`local_match`.
         """
-        search = config.search
-        base, grown = search.window(), search.window(self.elapsed_s)
-        windows = [base] if grown == base else [base, grown]
-        candidates = [] if local is None else [local]
-        registration = None
-        for window in windows:
-            registration = self._round(matcher, reference, current, guess, config, window,
-                                       candidates, local, trusted, prediction, registration)
-        wider = search.widened(windows[-1])
-        if wider is not None and self._search_further(registration, guess, config):
-            registration = self._round(matcher, reference, current, guess, config, wider,
-                                       candidates, local, trusted, prediction, registration)
-            registration.widened = True
-        registration.trigger, registration.local_failure = trigger, failure
-        return registration
-
-    def _round(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
-               guess: se2.Pose, config: PipelineConfig, window: SearchWindow,
-               candidates: list[MatchResult], local: MatchResult | None, trusted: bool,
-               prediction: Prediction | None, last: Registration | None) -> Registration:
-        """Search ``window``, add its refined peaks to ``candidates``, choose among all."""
-        result, refined = self._refined_peaks(matcher, reference, current, guess, window,
-                                              config)
-        candidates += refined
-        if result is None and last is not None:
-            result = last.search
-        return self._choose(reference, current, guess, config, window, result, candidates,
-                            local, trusted, prediction)
-
-    def _refined_peaks(self, matcher: ScanMatcher, reference: ScanPoints,
-                       current: ScanPoints, guess: se2.Pose, window: SearchWindow,
-                       config: PipelineConfig
-                       ) -> tuple[SearchResult | None, list[MatchResult]]:
-        """Search ``window`` around ``guess``; return the result and its refined peaks."""
-        search_config = config.search
-        result = correlative_search(
-            reference, current, guess, window, search_config.global_search_candidates,
-            min(KEEP_RATIO, search_config.global_search_ambiguity),
-            SURFACE_SPAN / search_config.global_search_effective_points)
-        if result is None:
-            return None, []
-        return result, [self.local_match(matcher, reference, current, peak.pose)
-                        for peak in result.peaks]
-
-    @staticmethod
-    def _search_further(registration: Registration, guess: se2.Pose,
-                        config: PipelineConfig) -> bool:
-        """Tell whether the best pose lies at the window's edge or fits poorly."""
-        match, window = registration.match, registration.window
-        if not match.converged or window is None:
-            return True
-        fit = match.extra.get('surface_fit', 0.0)
-        if fit < config.search.global_search_poor_fit:
-            return True
-        offset = np.asarray(match.pose, dtype=float) - guess
-        edge = max(abs(offset[0]), abs(offset[1])) >= window.linear - window.resolution
-        turned = abs(float(se2.wrap_angle(offset[2])))
-        return bool(edge or (window.angular < math.pi
-                             and turned >= window.angular - window.resolution))
-
-    def _choose(self, reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
-                config: PipelineConfig, window: SearchWindow, result: SearchResult | None,
-                candidates: list[MatchResult], local: MatchResult | None,
-                trusted: bool, prediction: Prediction | None) -> Registration:
-        """Judge the refined candidates by their surface fit; return the registration.
-
-        Among candidates that fit alike, the one nearest the trusted guess, or else the
-        blind prediction, is taken.
-        """
-        search_config = config.search
-        converged = [m for m in candidates if m.converged and se2.is_finite_pose(m.pose)]
-        registration = Registration(local if local is not None else MatchResult.failure(
-            guess, reason='search found nothing' if result is None else ''),
-            search=result, candidates=len(candidates), trusted=trusted, window=window)
-        if not converged:
-            return registration
-        # Every candidate is measured on the reference surface, the same way whatever
-        # the matcher; those inside the window and on the surface enough compete first
-        # (the window is the gate they are judged by). A matcher's own inlier ratio
-        # would drop correct poses a metre away, where its pair gates cut.
-        points = search_points(current, window.resolution)
-        for m in converged:
-            m.extra['surface_fit'], m.extra['surface_overlap'] = surface_fit(
-                reference, points, m.pose, window.kernel_sigma)
-        pool = [m for m in converged if searched_rejection_reason(
-            m, guess, config.acceptance, window) is None] or converged
-        fits = np.array([m.extra['surface_fit'] for m in pool])
-        scale = result.length_scale if result is not None else current.length_scale
-        separation = result.separation if result is not None else 3.0 * window.resolution
-        ambiguity = search_config.global_search_ambiguity
-        # A pose beyond the configured window (found as the window grew) is a larger
-        # motion, less likely a priori: it must fit better by 1 / ambiguity to be
-        # preferred (poorly fitting scans otherwise find a far pose that fits a little
-        # better by chance).
-        base = search_config.window()
-        far = np.array([searched_rejection_reason(m, guess, config.acceptance, base)
-                        == 'outside_window' for m in pool])
-        weighed = np.where(far, ambiguity * fits, fits)
-        best = int(np.argmax(weighed))
-        anchor = guess if trusted else (None if prediction is None else prediction.pose)
-        if anchor is not None and (trusted or fits[best] >= search_config.global_search_poor_fit):
-            # Among poses the scans cannot tell apart, the one nearest a trusted
-            # prediction is the best guess (nearest the last step's translation: its
-            # turn is not predicted; and only among poses that fit well - a robot that
-            # reverses is not where it went before).
-            alike = np.flatnonzero(weighed >= ambiguity * weighed[best])
-            near = pose_distance(np.array([pool[i].pose for i in alike]), anchor,
-                                 scale if trusted else 0.0)
-            best = int(alike[int(np.argmin(near))])
-        if local is not None and any(m is local for m in pool) and \
-                pose_distance(local.pose, pool[best].pose, scale)[0] <= separation:
-            # The fit tells solutions apart, not millimetres within one: when the match
-            # from the prediction converged to the chosen solution, it stands.
-            best = next(i for i, m in enumerate(pool) if m is local)
-        chosen = pool[best]
-        if result is not None:
-            chosen.extra['surface_covariance'] = surface_covariance(
-                result.poses, result.scores, chosen.pose,
-                search_config.global_search_effective_points, window.resolution, scale)
-        registration.match = chosen
-        registration.alternatives = distinct_alternatives(
-            pool, fits / max(float(fits[best]), 1e-12), chosen.pose, scale, separation,
-            ambiguity)
-        return registration
-
-
-def distinct_alternatives(candidates: list[MatchResult], fit_ratios: np.ndarray,
-                          chosen: se2.Pose, length_scale: float, separation: float,
-                          ambiguity: float) -> list[tuple[np.ndarray, float]]:
-    """Return the candidates that fit at least ``ambiguity`` as well as the chosen pose.
-
-    Only those farther than ``separation`` from the chosen pose and from each other
-    (rotation measured as the arc at ``length_scale``) count, with their fit ratio.
-    """
-    alternatives: list[tuple[np.ndarray, float]] = []
-    for match, ratio in zip(candidates, fit_ratios):
-        distinct = all(pose_distance(match.pose, other, length_scale)[0] > separation
-                       for other in [chosen] + [pose for pose, _ in alternatives])
-        if distinct and ratio >= ambiguity:
-            alternatives.append((match.pose.copy(), float(ratio)))
-    return alternatives
+        choice = search_and_choose(
+            lambda pose: self.local_match(matcher, reference, current, pose), reference,
+            current, guess, config, self.elapsed_s, local, trusted, prediction)
+        match = choice.match
+        if match is None:
+            match = local if local is not None else MatchResult.failure(
+                guess, reason='search found nothing' if choice.search is None else '')
+        return Registration(match, trigger, failure, search=choice.search,
+                            alternatives=choice.alternatives, candidates=choice.candidates,
+                            trusted=trusted, window=choice.window, widened=choice.widened)
