@@ -10,9 +10,10 @@ pose chosen lies at the window's edge or fits poorly. The candidates of every se
 compete, compared by one matcher-independent measure - how well the current points
 fall on the reference surface (:func:`surface_fit`) - so correct evidence far from a
 wrong prediction wins over it. A pose beyond the configured window is a larger motion,
-less likely a priori, and must fit clearly better (by ``1 / global_search_ambiguity``);
-otherwise a grown window's far peaks, which fit a little better by chance where the
-scans share little, would crowd out the near solution. Distinct poses that fit alike
+less likely a priori: it must fit clearly better (by ``1 / global_search_ambiguity``)
+and fit well (``global_search_poor_fit``) to be preferred to a nearer one; otherwise a
+grown window's far peaks, which fit a little better by chance where the scans share
+little, would win. Distinct poses that fit alike
 are kept as alternatives (a symmetric room, a featureless corridor), and the spread of
 the search's score surface about the chosen pose is measured
 (:mod:`laser_odom.core.evidence`).
@@ -100,11 +101,25 @@ def _round(refine: Refine, reference: ScanPoints, current: ScanPoints, guess: se
         min(KEEP_RATIO, search.global_search_ambiguity),
         SURFACE_SPAN / search.global_search_effective_points)
     if result is not None:
-        candidates += [refine(peak.pose) for peak in result.peaks]
+        refined = [refine(peak.pose) for peak in result.peaks]
+        if last is not None:
+            # The configured window was searched first: a grown window adds the
+            # motions beyond it, not second opinions within it.
+            refined = [m for m in refined if _beyond(m, guess, config)]
+        candidates += refined
     elif last is not None:
         result = last.search
     return choose(reference, current, guess, config, window, result, candidates, local,
                   trusted, prediction)
+
+
+def _beyond(match: MatchResult, guess: se2.Pose, config: PipelineConfig) -> bool:
+    """Tell whether a converged match lies beyond the configured window."""
+    offset = np.asarray(match.pose, dtype=float) - guess
+    window = config.search.window()
+    slack = window.resolution
+    return bool(max(abs(offset[0]), abs(offset[1])) > window.linear + slack
+                or abs(float(se2.wrap_angle(offset[2]))) > window.angular + slack)
 
 
 def search_further(choice: Choice, guess: se2.Pose, config: PipelineConfig) -> bool:
@@ -149,9 +164,11 @@ def choose(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
     scale = result.length_scale if result is not None else current.length_scale
     separation = result.separation if result is not None else 3.0 * window.resolution
     ambiguity = search.global_search_ambiguity
-    far = np.array([searched_rejection_reason(m, guess, config.acceptance, search.window())
-                    == 'outside_window' for m in pool])
+    far = np.array([_beyond(m, guess, config) for m in pool])
     weighed = np.where(far, ambiguity * fits, fits)
+    if not far.all():
+        # A far pose that fits poorly is no evidence of a larger motion.
+        weighed[far & (fits < search.global_search_poor_fit)] = 0.0
     best = int(np.argmax(weighed))
     anchor = guess if trusted else (None if prediction is None else prediction.pose)
     if anchor is not None and (trusted or fits[best] >= search.global_search_poor_fit):
@@ -159,7 +176,11 @@ def choose(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
         # is the best guess (nearest the last step's translation: its turn is not
         # predicted; and only among poses that fit well - a robot that reverses is not
         # where it went before).
-        alike = np.flatnonzero(weighed >= ambiguity * weighed[best])
+        alike = weighed >= ambiguity * weighed[best]
+        if not trusted:  # the same turn: the last step cannot tell turns apart
+            turns = np.array([se2.wrap_angle(m.pose[2] - pool[best].pose[2]) for m in pool])
+            alike &= np.abs(turns) * scale <= separation
+        alike = np.flatnonzero(alike)
         near = pose_distance(np.array([pool[i].pose for i in alike]), anchor,
                              scale if trusted else 0.0)
         best = int(alike[int(np.argmin(near))])
