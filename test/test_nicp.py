@@ -596,6 +596,14 @@ def test_the_capture_stage_finds_a_step_longer_than_the_pair_gate_along_a_corrid
                                                                    se2.pose()).pose)
             found[name] += math.hypot(error[0], error[1]) < 0.05
     assert found['capture'] >= 20 and found['gate only'] <= 5, found  # of 30 pairs
+    # A trusted prediction is refined within the pair gate alone: no capture stage.
+    prediction = se2.pose(0.95, 0.02, 0.01)
+    refined = NicpMatcher().match_from_prediction(reference, current, prediction)
+    gated = NicpMatcher(NicpConfig(capture_distance=0.0))
+    gated = gated.match(reference, current, prediction)
+    np.testing.assert_array_equal(refined.pose, gated.pose)
+    error = se2.relative(motion, refined.pose)
+    assert math.hypot(error[0], error[1]) < 0.05
 
 
 # Last in the file: the slowest self-contained test here (8 s with numba off), and a

@@ -200,13 +200,13 @@ class Registrar:
         prediction = self.predict(guess, untrusted, reference, current)
         mode = config.search.global_search
         if mode == 'always' or (mode == 'recover' and untrusted):
-            local = self.local_match(matcher, reference, current, guess) \
+            local = self.local_match(matcher, reference, current, guess, not untrusted) \
                 if mode == 'always' else None
             registration = self._search(matcher, reference, current, guess, config,
                                         'always' if mode == 'always' else untrusted, local,
                                         '', not untrusted, prediction)
         else:
-            local = self.local_match(matcher, reference, current, guess)
+            local = self.local_match(matcher, reference, current, guess, True)
             failure = self.local_failure(local, guess, config)
             if failure and mode == 'recover':
                 registration = self._search(matcher, reference, current, guess, config,
@@ -292,15 +292,20 @@ class Registrar:
         return describe_rejection(reason, match, guess, config)
 
     def local_match(self, matcher: ScanMatcher, reference: ScanPoints,
-                    current: ScanPoints, guess: se2.Pose) -> MatchResult:
+                    current: ScanPoints, guess: se2.Pose,
+                    predicted: bool = False) -> MatchResult:
         """Run the matcher; an internal error becomes a failed match, never a crash.
+
+        From a trusted prediction (``predicted``) it refines the prediction
+        (:meth:`.ScanMatcher.match_from_prediction`), else it matches from a far guess.
 
         Odometry must keep running on input nobody foresaw; the error is counted as
         ``matcher_error`` and said (throttled) so that it gets reported and fixed.
         The matcher's ``covariance_scale`` calibration is applied here, once for all.
         """
         try:
-            match = matcher.match(reference, current, guess)
+            run = matcher.match_from_prediction if predicted else matcher.match
+            match = run(reference, current, guess)
         except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as error:
             self.events.warn('matcher_error', f'{matcher.name} failed on a scan: '
                              f'{error!r}')

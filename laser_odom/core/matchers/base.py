@@ -106,6 +106,15 @@ class ScanMatcher(ABC):
               initial_guess: se2.Pose) -> MatchResult:
         """Estimate the pose of ``current`` in the frame of ``reference``."""
 
+    def match_from_prediction(self, reference: ScanPoints, current: ScanPoints,
+                              prediction: se2.Pose) -> MatchResult:
+        """Refine a trusted ``prediction``: the motion left to find is small.
+
+        The default is :meth:`match`; a matcher with a wide first stage for far guesses
+        (nicp's capture stage) leaves it out here.
+        """
+        return self.match(reference, current, prediction)
+
     def prepare_reference(self, scan: ScanPoints) -> None:
         """Build, in ``scan``'s cache, what only matching *against* it needs.
 

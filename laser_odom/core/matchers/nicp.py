@@ -53,8 +53,9 @@ class NicpConfig(MatcherConfig):
         'along a direction the scene hardly constrains, such as a corridor axis).',
         0.0, 1e6)
     capture_distance: float = param(
-        1.5, 'The match first pairs points up to this far [m] apart, until it settles, '
-        'then refines with max_correspondence_distance: along a corridor only the door '
+        1.5, 'A match from a far guess (a search peak; not from a trusted prediction) '
+        'first pairs points up to this far [m] apart, until it settles, then refines '
+        'with max_correspondence_distance: along a corridor only the door '
         'frames and end walls tell the motion, and their partners lie a step away '
         '(no capture stage when not above max_correspondence_distance).', 0.0, 10.0)
     normal_neighbours: int = param(
@@ -187,6 +188,21 @@ class NicpMatcher(ScanMatcher):
         the walls than the true motion a metre on, so it won over a correct match -
         fr079 every 10th scan, 1.06 m reported as 0.01 m with a 1 mm-tight heading.)
         """
+        return self._match(reference, current, initial_guess, capture=True)
+
+    def match_from_prediction(self, reference: ScanPoints, current: ScanPoints,
+                              prediction: se2.Pose) -> MatchResult:
+        """Refine a trusted prediction: :meth:`match` without the capture stage.
+
+        Its step is within the pair gate, and pairs up to ``capture_distance`` only
+        pull it towards surfaces a step away (MIT CSAIL at full rate, wheel-odometry
+        prior: ATE 0.64 m with the capture stage, 0.57 m without).
+        """
+        return self._match(reference, current, prediction, capture=False)
+
+    def _match(self, reference: ScanPoints, current: ScanPoints, initial_guess: se2.Pose,
+               capture: bool) -> MatchResult:
+        """:meth:`match`, with or without the capture stage."""
         cfg = self.config
         guess = np.array(initial_guess, dtype=float)
         if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
@@ -197,7 +213,7 @@ class NicpMatcher(ScanMatcher):
         if cur.index.size < cfg.min_correspondences:
             return MatchResult.failure(guess, reason='too few normals')
         length = current.length_scale
-        result = self._optimise(reference, ref, cur, guess, length)
+        result = self._optimise(reference, ref, cur, guess, length, capture)
         if cfg.restart_window <= 0.0:
             return result
         theta = rotation_seed(ref, cur, float(guess[2]), cfg.restart_window)
@@ -205,7 +221,7 @@ class NicpMatcher(ScanMatcher):
         if self._good(result) and not disagree:
             return result
         candidate = self._optimise(reference, ref, cur,
-                                   np.array([guess[0], guess[1], theta]), length)
+                                   np.array([guess[0], guess[1], theta]), length, capture)
         candidate.extra['restarted'] = True
         return candidate if self._better(candidate, result) else result
 
@@ -220,11 +236,12 @@ class NicpMatcher(ScanMatcher):
                 > (incumbent.converged, incumbent.inlier_ratio))
 
     def _optimise(self, reference: ScanPoints, ref: NicpSurface, cur: NicpSurface,
-                  start: np.ndarray, length_scale: float) -> MatchResult:
+                  start: np.ndarray, length_scale: float, capture: bool) -> MatchResult:
         """Run the robust Gauss-Newton iterations from ``start``; return the result.
 
-        The iterations are :func:`.nicp_solver.gauss_newton`, first with pairs up to
-        ``capture_distance`` apart until they settle (when it is the larger gate), then
+        The iterations are :func:`.nicp_solver.gauss_newton`, first (when ``capture``)
+        with pairs up to ``capture_distance`` apart until they settle (when it is the
+        larger gate), then
         with ``max_correspondence_distance`` from there. Nearest-neighbour pairs within
         a 0.5 m gate leave a step longer than the gate along a corridor to the side
         walls alone, which say nothing along it, and the match stays where it started
@@ -237,7 +254,7 @@ class NicpMatcher(ScanMatcher):
         cfg = self.config
         start = np.asarray(start, dtype=float)
         settled, iterations = start, 0
-        if cfg.capture_distance > cfg.max_correspondence_distance:
+        if capture and cfg.capture_distance > cfg.max_correspondence_distance:
             status, estimate, _, iterations, _ = self._iterate(
                 reference, ref, cur, start, cfg.capture_distance)
             if status == 0 and se2.is_finite_pose(estimate):
