@@ -27,7 +27,7 @@ from laser_odom.core.pipeline import OdometryPipeline
 from laser_odom.core.runner import run_pipeline
 from laser_odom.core.scan import scan_to_points, ScanPoints
 from laser_odom.core.simulation import geometry as geo
-from laser_odom.core.simulation import LaserModel, render_scan, World
+from laser_odom.core.simulation import get_world, LaserModel, render_scan, World
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / 'config' / 'nicp.yaml'
 
@@ -548,14 +548,17 @@ def test_real_logs_are_tracked(shared_data_dir, path, scans, bounds):
 
 
 def test_iterations_are_counted_from_one_and_capped():
-    """The cap is the last iteration run: one fewer leaves the match unconverged."""
+    """The cap is the last iteration run: one fewer leaves the match unconverged.
+
+    One stage (no capture stage): the cap is per stage, the count their sum.
+    """
     laser = LaserModel(beams=360, fov=2.0 * math.pi, max_range=20.0, noise_sigma=0.005)
     reference = _scan(ROOM, START, laser, seed=1)
     motion = se2.pose(0.15, 0.05, 0.08)
     current = _scan(ROOM, se2.compose(START, motion), laser, seed=2)
 
     def match(cap: int):
-        config = NicpConfig(restart_window=0.0, max_iterations=cap)
+        config = NicpConfig(restart_window=0.0, max_iterations=cap, capture_distance=0.0)
         return NicpMatcher(config).match(reference, current, se2.pose())
 
     free = match(100)
@@ -567,6 +570,40 @@ def test_iterations_are_counted_from_one_and_capped():
     short = match(free.iterations - 1)
     assert not short.converged and short.iterations == free.iterations - 1
     assert not np.array_equal(short.pose, free.pose)
+
+
+def test_the_capture_stage_finds_a_step_longer_than_the_pair_gate_along_a_corridor():
+    """From zero motion, a 1 m step along the simulated corridors (180 deg, 361 beams).
+
+    Within the 0.5 m pair gate only the side walls pair, which say nothing along the
+    corridor: the match stays where it started. Pairs up to ``capture_distance`` (1.5
+    m) first reach the door frames and the corridor's ends.
+    """
+    world = get_world('corridor')
+    laser = LaserModel(beams=361, fov=math.pi)
+    rng = np.random.default_rng(0)
+    motion = se2.pose(1.0, 0.0, 0.0)
+    found = {}
+    for name, config in (('capture', NicpConfig()),
+                         ('gate only', NicpConfig(capture_distance=0.0))):
+        found[name] = 0
+        for t in np.arange(2.0, 120.0, 4.0):
+            start = world.path.poses_at(np.array([t]))[0]
+            reference = scan_to_points(render_scan(world, start, laser, rng))
+            current = scan_to_points(render_scan(world, se2.compose(start, motion), laser,
+                                                 rng))
+            error = se2.relative(motion, NicpMatcher(config).match(reference, current,
+                                                                   se2.pose()).pose)
+            found[name] += math.hypot(error[0], error[1]) < 0.05
+    assert found['capture'] >= 20 and found['gate only'] <= 5, found  # of 30 pairs
+    # A trusted prediction is refined within the pair gate alone: no capture stage.
+    prediction = se2.pose(0.95, 0.02, 0.01)
+    refined = NicpMatcher().match_from_prediction(reference, current, prediction)
+    gated = NicpMatcher(NicpConfig(capture_distance=0.0))
+    gated = gated.match(reference, current, prediction)
+    np.testing.assert_array_equal(refined.pose, gated.pose)
+    error = se2.relative(motion, refined.pose)
+    assert math.hypot(error[0], error[1]) < 0.05
 
 
 # Last in the file: the slowest self-contained test here (8 s with numba off), and a

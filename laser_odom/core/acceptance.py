@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from laser_odom.core import se2
+from laser_odom.core.blind_prior import Prediction
 from laser_odom.core.config import AcceptanceConfig, PipelineConfig
 from laser_odom.core.degeneracy import degenerate_directions, metric_scale
 from laser_odom.core.matchers import MatchResult
@@ -31,9 +32,6 @@ if TYPE_CHECKING:  # pragma: no cover - typing only, registration imports this m
 
 DEGENERATE_VARIANCE = 1.0
 """Variance given to a degenerate direction [m^2 or rad^2]: as uncertain as the prior."""
-
-REJECTED_VARIANCE = np.array([0.25, 0.25, 0.25])
-"""Step variance of a rejected match (x, y, yaw)."""
 
 
 @dataclass
@@ -118,7 +116,7 @@ def describe_rejection(reason: str, match: MatchResult, guess: se2.Pose,
                 f'{acceptance.max_correction_linear:.2f} m / '
                 f'{math.degrees(acceptance.max_correction_angular):.1f} deg')
     if reason == 'outside_window':
-        window = config.search.window()
+        window = match.extra.get('window', config.search.window())
         return (f'{linear:.2f} m / {math.degrees(angular):.1f} deg from the prediction, '
                 f'outside the search window +-{window.linear:.2f} m / '
                 f'+-{math.degrees(window.angular):.1f} deg')
@@ -133,27 +131,86 @@ def judge_match(registration: Registration, guess: se2.Pose, config: PipelineCon
     rotational with translational information.
     """
     match = registration.match
+    window = registration.window or config.search.window()
     if registration.searched:
-        reason = searched_rejection_reason(match, guess, config.acceptance,
-                                           config.search.window())
+        reason = searched_rejection_reason(match, guess, config.acceptance, window)
     else:
         reason = rejection_reason(match, guess, config.acceptance)
+    prediction = registration.prediction
+    trusted = prediction if prediction is not None and prediction.source == 'prior' else None
     if reason is not None:
         match.extra['rejection'] = reason
-        pose = guess if config.acceptance.rejected_motion == 'predict' else se2.pose()
-        return MatchVerdict(np.array(pose, dtype=float), np.diag(REJECTED_VARIANCE),
-                            'rejected')
+        match.extra['window'] = window
+        if config.acceptance.rejected_motion == 'predict':
+            # The step is the prediction, as uncertain as its measured error when it
+            # was trusted; else it is anywhere in the window.
+            covariance = (rejected_covariance(window) if trusted is None
+                          else trusted.covariance)
+            return MatchVerdict(np.array(guess, dtype=float), covariance, 'rejected')
+        return MatchVerdict(se2.pose(), rejected_covariance(window), 'rejected')
     # Along a direction the scene does not constrain the estimate keeps the prediction
     # - when there is one to trust. Otherwise the searched and refined pose is the best
     # estimate there is, and its covariance says how weak it is.
     anchor = guess if registration.trusted else match.pose
-    verdict = _degeneracy(match, anchor, config.acceptance, length_scale)
+    if not registration.trusted and prediction is not None:
+        # The last step's translation; its turn is not predicted (blind_prior).
+        anchor = np.array([prediction.pose[0], prediction.pose[1], match.pose[2]])
+    verdict = _degeneracy(match, anchor, config.acceptance, length_scale, prediction)
+    verdict = _weakly_constrained(match, verdict, config.acceptance, length_scale)
     if registration.alternatives:
         match.extra['ambiguous'] = True
         verdict = MatchVerdict(verdict.pose, covering_covariance(
             verdict.pose, verdict.covariance, [pose for pose, _ in registration.alternatives]),
             'degenerate')
+    if registration.searched and match.extra.get('surface_fit', 1.0) < \
+            config.search.global_search_poor_fit:
+        # Even the widened search found no pose that fits well: the scans cannot tell
+        # where the motion went, though the best guess stands. It is anywhere in the
+        # window - or, with a trusted prediction, the prediction or the match.
+        match.extra['poor_fit'] = True
+        cover = rejected_covariance(window) if trusted is None else covering_covariance(
+            verdict.pose, trusted.covariance, [trusted.pose])
+        verdict = MatchVerdict(verdict.pose, verdict.covariance + cover, 'degenerate')
     return verdict
+
+
+def rejected_covariance(window: SearchWindow) -> np.ndarray:
+    """Return the step covariance of a rejected match: the motion is anywhere in the window.
+
+    The window is where the motion can be (it grows with the time since the last good
+    match at the robot's top speed and turn rate), so its half-widths are the step's
+    standard deviations in x, y and heading: the held or predicted pose says nothing
+    more.
+    """
+    return np.diag([window.linear ** 2, window.linear ** 2, window.angular ** 2])
+
+
+def _weakly_constrained(match: MatchResult, verdict: MatchVerdict,
+                        config: AcceptanceConfig, length_scale: float) -> MatchVerdict:
+    """Grow the covariance by what the evidence says the matcher's does not cover.
+
+    ``surface_covariance`` in the match's extras is the spread of the search's score
+    surface (or of the fit's profile) beyond its grid (:mod:`laser_odom.core.evidence`).
+    It is added; when it exceeds the degeneracy threshold in some direction (a standard
+    deviation above 5 cm by default) the match is weakly constrained: reported
+    ``degenerate`` (its covariance is ignorance there, which compounds as independent)
+    and flagged ``weak``.
+    """
+    grown = match.extra.get('surface_covariance')
+    if grown is None or not np.any(grown):
+        return verdict
+    covariance = verdict.covariance + grown
+    values, _, weak = degenerate_directions(_information_of(grown), length_scale,
+                                            config.degeneracy_min_information)
+    if not np.any(weak & (values > 0.0)):
+        return MatchVerdict(verdict.pose, covariance, verdict.status)
+    match.extra['weak'] = True
+    return MatchVerdict(verdict.pose, covariance, 'degenerate')
+
+
+def _information_of(covariance: np.ndarray) -> np.ndarray:
+    """Return the pseudo-inverse of a covariance: no information where it has no variance."""
+    return np.linalg.pinv(0.5 * (covariance + covariance.T), hermitian=True)
 
 
 def covering_covariance(pose: se2.Pose, covariance: np.ndarray,
@@ -172,11 +229,12 @@ def covering_covariance(pose: se2.Pose, covariance: np.ndarray,
 
 
 def _degeneracy(match: MatchResult, anchor: se2.Pose, config: AcceptanceConfig,
-                length_scale: float) -> MatchVerdict:
+                length_scale: float, prediction: Prediction | None = None) -> MatchVerdict:
     """Keep a match, or its correction from ``anchor`` only along the directions it constrains.
 
     Along the weak directions the pose keeps ``anchor`` (the prediction) and a large
-    variance.
+    variance - or, when a prediction with a measured error stands in
+    (:mod:`laser_odom.core.blind_prior`), that error, when smaller.
     """
     values, vectors, weak = degenerate_directions(
         match.information, length_scale, config.degeneracy_min_information)
@@ -191,7 +249,13 @@ def _degeneracy(match: MatchResult, anchor: se2.Pose, config: AcceptanceConfig,
     strong = vectors[:, ~weak]
     pose = anchor + scale * (strong @ (strong.T @ (correction / scale)))
     pose[2] = se2.wrap_angle(pose[2])
-    variances = np.where(weak, DEGENERATE_VARIANCE, 1.0 / np.maximum(values, 1e-300))
+    blind = np.full(len(values), DEGENERATE_VARIANCE)
+    if prediction is not None:
+        # The prediction's variance along each weak direction, in metric units.
+        metric = prediction.covariance / scale[:, None] / scale[None, :]
+        blind = np.minimum(blind, np.einsum('ik,ij,jk->k', vectors, metric, vectors))
+        match.extra['predicted'] = prediction.source
+    variances = np.where(weak, blind, 1.0 / np.maximum(values, 1e-300))
     metric_covariance = (vectors * variances) @ vectors.T
     covariance = (metric_covariance * scale[:, None]) * scale[None, :]
     return MatchVerdict(pose, 0.5 * (covariance + covariance.T), 'degenerate')

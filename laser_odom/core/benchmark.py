@@ -6,6 +6,7 @@ The benchmark command, the real-data tests and the closing notes all use
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass, fields
 import math
 import time
@@ -17,7 +18,8 @@ from laser_odom.core import se2
 from laser_odom.core.config import (
     GlobalSearchConfig, MountingConfig, PipelineConfig, REFERENCES, ScanConfig)
 from laser_odom.core.consistency import (
-    Consistency, NO_REFERENCE_NOISE, ReferenceNoise, run_consistency, WINDOWS)
+    Consistency, failed_steps, FailedSteps, NO_REFERENCE_NOISE, ReferenceNoise,
+    run_consistency, WINDOWS)
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import default_config
 from laser_odom.core.metrics import evaluate, segment_drift
@@ -194,6 +196,11 @@ class BenchRow:
     """Noise of each reference pose that the NEES accounts for, in x and in y [m]."""
     reference_noise_deg: float = 0.0
     """Noise of each reference pose that the NEES accounts for, in heading [deg]."""
+    announced: int | None = None
+    """Failed steps whose published step covariance covered them (NEES within the
+    99.9 % bound, :mod:`laser_odom.core.consistency`); None without a reference."""
+    silent: int | None = None
+    """Failed steps it did not cover: a filter fusing the odometry takes them as truth."""
     reference: str = 'scan'
     """What each scan was matched against: the pipeline's ``reference`` setting
     (``scan`` or ``local_map``; ``-`` for the wheel odometry row)."""
@@ -237,7 +244,8 @@ def _accuracy(estimate: Trajectory, reference: Trajectory) -> Accuracy:
 
 def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Trajectory,
          times: np.ndarray, rejected: int, consistency: Consistency | None = None,
-         noise: ReferenceNoise = NO_REFERENCE_NOISE, reference: str = 'scan') -> BenchRow:
+         noise: ReferenceNoise = NO_REFERENCE_NOISE,
+         failures: FailedSteps | None = None, reference: str = 'scan') -> BenchRow:
     """Score an estimated trajectory against the dataset's reference (if it has one).
 
     ``reference`` is what the scans were matched against (the row key).
@@ -259,6 +267,8 @@ def _row(dataset: Dataset, matcher: str, prior: str, deskew: str, estimate: Traj
         row.nees_integrated = consistency.integrated
         row.reference_noise_m = noise.translation
         row.reference_noise_deg = math.degrees(noise.rotation)
+    if failures is not None:
+        row.announced, row.silent = failures.announced, failures.silent
     return row
 
 
@@ -303,12 +313,26 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
     if prior == 'odom':
         feed = PriorFeed('odom', PriorConfig(), odometry=dataset.odometry)
     result = run_pipeline(pipeline, dataset.scans, priors=feed, progress=progress)
-    model = (StepErrorModel.of_map(pipeline.matcher.config) if pipeline.map_registrar is not None
+    model = (StepErrorModel.of_map(pipeline.matcher.config)
+             if pipeline.map_registrar is not None
              else StepErrorModel.of(pipeline.matcher.config))
     consistency = _consistency(result, dataset.reference, model, reference_noise)
+    failures = None if consistency is None else failed_steps(
+        result.trajectory, result.step_covariances, dataset.reference, reference_noise)
     return _row(dataset, matcher, prior, config.scan.deskew, result.trajectory,
                 result.processing_times, result.counters['rejected'], consistency,
-                reference_noise, config.local_map.reference)
+                reference_noise, failures, config.local_map.reference)
+
+
+def simulated_scanner(config: PipelineConfig) -> PipelineConfig:
+    """Return ``config`` for the simulated scanner: exact but for its noise.
+
+    The heading walk of a real scanner (``covariance_heading_walk``, fitted to the
+    real logs; :mod:`laser_odom.core.pose_uncertainty`) is not there.
+    """
+    matcher_config = dataclasses.replace(config.resolved_matcher_config(),
+                                         covariance_heading_walk=0.0)
+    return dataclasses.replace(config, matcher_config=matcher_config)
 
 
 def wheel_odometry_trajectory(dataset: Dataset) -> Trajectory:

@@ -126,11 +126,48 @@ class GlobalSearchConfig:
         0.9, 'A searched match is ambiguous (reported degenerate, with a covariance '
         'that covers the alternatives) when a distinct refined pose fits at least this '
         'fraction as well (a featureless corridor, a symmetric room).', 0.5, 1.0)
+    global_search_max_speed: float = param(
+        1.0, 'Fastest the robot drives [m/s]: the window grows to this speed times the '
+        'time since the last good match (never below global_search_linear).', 0.0, 100.0)
+    global_search_max_turn_rate: float = param(
+        1.5, 'Fastest the robot turns [rad/s]: the window grows to this rate times the '
+        'time since the last good match (never below global_search_angular; a full turn '
+        'at most).', 0.0, 100.0)
+    global_search_max_linear: float = param(
+        4.0, 'The window grows to at most this half-width [m], once more when the best '
+        'pose lies at its edge or fits poorly (bounds the search time).', 0.0, 20.0)
+    global_search_poor_fit: float = param(
+        0.45, 'A searched match whose points fall on the reference surface less than this '
+        '(the surface fit, 0..1) is searched again in a window twice as wide; if it still '
+        'fits this poorly, its covariance covers the window (the scans cannot tell).',
+        0.0, 1.0)
+    global_search_effective_points: float = param(
+        40.0, "The search's scores read as a likelihood (Olson 2009): a pose scoring s is "
+        'exp(n (s - s_best)) as likely as the best, n this many independent points (a '
+        "scan's points err together). Where that distribution spreads beyond two grid "
+        'cells, the match covariance grows to cover it.', 1.0, 10000.0)
 
-    def window(self) -> SearchWindow:
-        """Return the searched window."""
-        return SearchWindow(self.global_search_linear, self.global_search_angular,
-                            self.global_search_resolution)
+    def window(self, elapsed: float = 0.0) -> SearchWindow:
+        """Return the window searched ``elapsed`` seconds after the last good match.
+
+        Its half-widths are the configured ones, grown to the distance and turn the
+        robot can cover in that time at ``global_search_max_speed`` and
+        ``global_search_max_turn_rate`` (up to ``global_search_max_linear`` and a
+        full turn).
+        """
+        linear = max(self.global_search_linear, min(
+            self.global_search_max_speed * elapsed, self.global_search_max_linear))
+        angular = max(self.global_search_angular, min(
+            self.global_search_max_turn_rate * elapsed, math.pi))
+        return SearchWindow(linear, angular, self.global_search_resolution)
+
+    def widened(self, window: SearchWindow) -> SearchWindow | None:
+        """Return ``window`` twice as wide (within the caps), None when it cannot grow."""
+        linear = max(window.linear, min(2.0 * window.linear, self.global_search_max_linear))
+        angular = min(2.0 * window.angular, math.pi)
+        if linear <= window.linear and angular <= window.angular:
+            return None
+        return SearchWindow(linear, angular, window.resolution, window.sigma)
 
 
 @dataclass

@@ -37,6 +37,17 @@ end's error into the other end's frame leaves it unchanged, so no rotation is ne
 window of length ``d``, is left out: the headings of a SLAM-corrected trajectory err
 together over nearby poses, which is why its noise is quoted per pose, not per metre.)
 ``2R`` is added to the estimate's covariance before the NEES: ``e^T (P + 2R)^-1 e``.
+
+**Failed steps: announced or silent.** A failed step (an RPE step between consecutive
+referenced scans off by more than 0.5 m or 10 deg, :func:`.metrics.evaluate`) is
+*announced* when the covariance the odometry published for it covers it: the NEES of
+its error against the step covariance (the published twist covariance times dt^2,
+compounded as independent over the scans between the two references, as a fusing
+filter would) is within the 99.9 % chi-square bound for 3 dof,
+:data:`ANNOUNCED_NEES`. Otherwise it is *silent*: a filter fuses it as if it were
+right. The reference's noise is accounted for as in the NEES figures (``2R`` added):
+a failed step of a metre along a corridor whose covariance says a metre is announced,
+even though the SLAM-corrected reference's heading is itself 1 deg off.
 """
 
 from __future__ import annotations
@@ -49,7 +60,8 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.metrics import (
-    associate, DEFAULT_MAX_OFFSET_NS, paired_reference_poses)
+    associate, DEFAULT_MAX_OFFSET_NS, FAILED_ROTATION_DEG, FAILED_TRANSLATION,
+    paired_reference_poses, relative_errors)
 from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
 from laser_odom.core.trajectory import Trajectory
 
@@ -62,6 +74,10 @@ is still close to zero there, so the reference noise alone would dominate)."""
 
 DOF = 3
 """Degrees of freedom of a planar pose: the mean NEES of an honest covariance."""
+
+ANNOUNCED_NEES = 16.27
+"""The 99.9 % quantile of chi-square with 3 dof: a failed step whose NEES against its
+published covariance is within it was announced (the covariance covers it)."""
 
 
 @dataclass(frozen=True)
@@ -269,3 +285,61 @@ def run_consistency(trajectory: Trajectory, pose_covariances: np.ndarray,
         {n: window_nees(trajectory.poses, step_covariances, models, at, n, noise, restarts)
          for n in windows},
         integrated_nees(trajectory.poses, pose_covariances, at, noise, restarts))
+
+
+@dataclass(frozen=True)
+class FailedSteps:
+    """Failed steps of a run and how many of them the published covariance covered."""
+
+    failed: int
+    announced: int
+
+    @property
+    def silent(self) -> int:
+        """Failed steps the covariance did not cover (a filter fuses them as truth)."""
+        return self.failed - self.announced
+
+
+def failed_step_nees(trajectory: Trajectory, step_covariances: np.ndarray,
+                     reference: Trajectory, noise: ReferenceNoise = NO_REFERENCE_NOISE,
+                     max_offset_ns: int = DEFAULT_MAX_OFFSET_NS) -> np.ndarray:
+    """Return the NEES of every failed RPE step against its published step covariance.
+
+    Steps run between consecutive scans paired with a reference pose, as in
+    :func:`.metrics.evaluate`; a step fails above ``FAILED_TRANSLATION`` m or
+    ``FAILED_ROTATION_DEG`` deg. Its covariance is the recorded step covariances of the
+    scans it spans compounded as independent (a single scan: the step covariance
+    itself), plus the reference's ``2R``; a singular one gives ``inf``.
+    """
+    ref_index, est_index = associate(trajectory, reference, max_offset_ns)
+    if len(est_index) < 2:
+        return np.zeros(0)
+    poses = trajectory.poses
+    references = paired_reference_poses(trajectory, reference, ref_index, est_index)
+    translation, rotation = relative_errors(poses[est_index], references)
+    failed = np.flatnonzero((translation > FAILED_TRANSLATION)
+                            | (rotation > FAILED_ROTATION_DEG))
+    white = StepErrorModel()
+    values = []
+    for j in failed:
+        start, end = int(est_index[j]), int(est_index[j + 1])
+        estimate, state = se2.pose(), PoseUncertainty.at()
+        for k in range(start + 1, end + 1):
+            step = se2.relative(poses[k - 1], poses[k])
+            state = state.propagate(estimate, step, step_covariances[k], white)
+            estimate = se2.compose(estimate, step)
+        truth = se2.relative(references[j], references[j + 1])
+        try:
+            values.append(nees(estimate - truth,
+                               state.pose_covariance + noise.relative_covariance))
+        except np.linalg.LinAlgError:
+            values.append(math.inf)
+    return np.array(values)
+
+
+def failed_steps(trajectory: Trajectory, step_covariances: np.ndarray,
+                 reference: Trajectory, noise: ReferenceNoise = NO_REFERENCE_NOISE
+                 ) -> FailedSteps:
+    """Count a run's failed steps and those announced (:func:`failed_step_nees`)."""
+    values = failed_step_nees(trajectory, step_covariances, reference, noise)
+    return FailedSteps(len(values), int(np.count_nonzero(values <= ANNOUNCED_NEES)))

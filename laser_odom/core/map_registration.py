@@ -84,17 +84,16 @@ class MapRegistrar:
         scale = current.length_scale
         local = None
         if not untrusted:
-            local, passed = registrar.try_local(matcher, view, current, guess, config)
+            registration, passed = registrar.try_local(matcher, view, current, guess, config)
+            local = registration.match
             if passed:
-                registration = Registration(local)
                 verdict = judge_match(registration, guess, config, scale)
                 if clean_match(registration, verdict):
                     return JudgedMatch(view, registrar, registration, verdict)
             if previous is not None:
-                second, passed = self.scan_registrar.try_local(matcher, previous, current,
-                                                               guess, config)
+                registration, passed = self.scan_registrar.try_local(
+                    matcher, previous, current, guess, config)
                 if passed:
-                    registration = Registration(second)
                     verdict = judge_match(registration, guess, config, scale)
                     if clean_match(registration, verdict):
                         return self._fallback(previous, registration, verdict)
@@ -111,7 +110,7 @@ class MapRegistrar:
         return JudgedMatch(view, registrar, registration, verdict)
 
     def update(self, current: ScanPoints, pose: se2.Pose, judged: JudgedMatch,
-               stamp_ns: int) -> None:
+               registrar: Registrar, stamp_ns: int) -> None:
         """Let a trusted scan join the map at ``pose``; restart the map after a rejection.
 
         A match against the map that was accepted, not ambiguous, and fits about as
@@ -120,6 +119,10 @@ class MapRegistrar:
         the map, featureless along it, stays consistent). A rejected match restarts the
         map from the current scan at the pose the pipeline took.
         """
+        if judged.verdict.status != 'rejected':
+            # The step is known: the registrar that did not make it has not lost track.
+            other = self.scan_registrar if judged.from_map else registrar
+            other.settled()
         if judged.verdict.status == 'rejected':
             self.map.restart(current, pose)
             self.events.count('map_restarted')

@@ -25,7 +25,7 @@ from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
 from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
 from laser_odom.core.registration import (
-    Registrar, Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS)
+    EVIDENCE_EVENTS, Registrar, Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS)
 from laser_odom.core.scan import LaserScan, ScanPoints
 from laser_odom.core.validation import REJECTIONS, ScanValidator
 
@@ -37,7 +37,8 @@ OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 're
 rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
 
 EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
-    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + tuple(DESKEW_EVENTS) + MAP_EVENTS
+    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + EVIDENCE_EVENTS + tuple(
+    DESKEW_EVENTS) + MAP_EVENTS
 """Counters of events that do not skip the scan: a missing or dropped prior, a clock
 jump, an ambiguous match, each reason the global search ran, sweep timing that was
 repaired or ignored, and what the local map did."""
@@ -327,7 +328,7 @@ class OdometryPipeline:
             self.untrusted = ''
         if self.map_registrar is not None:
             self.keyframe_prepared = False  # the next match sees the map from the new pose
-            self.map_registrar.update(current, self.pose, judged, stamp_ns)
+            self.map_registrar.update(current, self.pose, judged, self.registrar, stamp_ns)
         elif verdict.status == 'rejected' or self._keyframe_expired(verdict.pose):
             # After a rejection the current scan becomes the reference at the predicted
             # pose: a bad prediction then costs one step, instead of misleading every
@@ -425,6 +426,7 @@ class OdometryPipeline:
             self.events.warn('ambiguous', f'match at {at} is ambiguous: '
                              f'{registration.describe_alternatives()}; reported degenerate '
                              'with a covariance that covers the alternatives')
+        self.registrar.tell(registration, verdict.status, at)
 
     def _use_map_view(self) -> ScanPoints:
         """Make the local map seen from the current pose the reference of the next match.

@@ -5,14 +5,14 @@ step after an accepted match) the matcher starts from it, and its result is chec
 converged, enough of the scan paired, a residual and an inlier ratio near their usual
 level, and a correction inside ``max_correction_*``. When the prediction cannot be trusted (the
 first match, a gap longer than ``max_scan_gap``, ``prior: none``, right after a
-rejection), or the local match failed one of those checks, the correlative search
-(:mod:`laser_odom.core.search`) scores the whole window around the prediction and the
-matcher refines its best few poses. The refined candidates, and the local match when
-it converged, are compared by one matcher-independent measure - how well the current
-points fall on the reference surface (:func:`surface_fit`) - so correct evidence far
-from a wrong prediction wins over it, and two distinct poses that fit alike are found
-and reported (a symmetric room, a featureless corridor) instead of one being taken
-silently.
+rejection), or the local match failed one of those checks, the global search
+(:mod:`laser_odom.core.recovery`) scores the windows around the prediction and the
+matcher refines their best few poses; the candidate whose points fit the reference
+surface best is chosen, and distinct poses that fit alike are reported (a symmetric
+room, a featureless corridor) instead of one being taken silently. The registrar also
+keeps what a match is judged against: the usual fit of recent matches, the time since
+the last good one (the window grows with it) and the steps the blind prediction is
+measured on (:mod:`laser_odom.core.blind_prior`).
 """
 
 from __future__ import annotations
@@ -25,14 +25,14 @@ import statistics
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.acceptance import (
-    correction_from, describe_rejection, rejection_reason, searched_rejection_reason)
+from laser_odom.core.acceptance import correction_from, describe_rejection, rejection_reason
+from laser_odom.core.blind_prior import Prediction, StepHistory
 from laser_odom.core.config import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import MatchResult, ScanMatcher
+from laser_odom.core.recovery import search_and_choose
 from laser_odom.core.scan import ScanPoints
-from laser_odom.core.search import correlative_search, SearchResult
-from laser_odom.core.search.correlative import KEEP_RATIO, pose_distance, search_points
+from laser_odom.core.search import SearchResult, SearchWindow
 
 SEARCH_TRIGGERS = {
     'reset': 'first match after a start, reset or time jump: no prediction yet',
@@ -43,6 +43,19 @@ SEARCH_TRIGGERS = {
     'always': 'global_search is always',
 }
 """Why the global search ran, by trigger name (counted as ``search_<trigger>``)."""
+
+PREDICTION_SOURCES = {'prior': 'the prediction (the prior)',
+                      'last_step': "the last well-constrained step's motion (steady rate)"}
+"""What stood in for a blind direction, by :attr:`.Prediction.source`."""
+
+EVIDENCE_EVENTS = ('weakly_constrained', 'poor_fit', 'prediction_used', 'search_widened')
+"""Counted events of the evidence a match had: its covariance grew along a direction
+the scan hardly constrains (``weakly_constrained``) or, as no searched pose fitted
+well, to the whole window (``poor_fit``); the window was searched again twice as wide
+(``search_widened``)."""
+
+WEAK_FLAGS = ('weak', 'ambiguous', 'poor_fit', 'predicted')
+"""Extras of a match that was not well constrained (:mod:`laser_odom.core.acceptance`)."""
 
 ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always')
 """Triggers that are how the odometry is meant to run: counted, not warned about."""
@@ -106,6 +119,14 @@ class Registration:
     alternatives: list[tuple[np.ndarray, float]] = field(default_factory=list)
     candidates: int = 0
     trusted: bool = True
+    window: SearchWindow | None = None
+    """The window searched (grown with the time since the last good match, and once
+    more when the best pose lay at its edge or fitted poorly); None when no search ran."""
+    widened: bool = False
+    """Whether the window was searched a second time, twice as wide."""
+    prediction: Prediction | None = None
+    """What stands in where the scan is blind (:mod:`laser_odom.core.blind_prior`): the
+    trusted guess, or with no trusted guess the last well-constrained step's motion."""
 
     @property
     def searched(self) -> bool:
@@ -120,7 +141,11 @@ class Registration:
             return f'none of {self.candidates} refined candidates converged'
         linear, angular = correction_from(guess, self.match.pose)
         fit = self.match.extra.get('surface_fit', float('nan'))
-        return (f'best of {self.candidates} refined candidates: {linear:.2f} m / '
+        window = self.window
+        wide = '' if window is None else (
+            f' in a window of +-{window.linear:.1f} m / +-{math.degrees(window.angular):.0f} deg'
+            + (', searched again twice as wide' if self.widened else ''))
+        return (f'best of {self.candidates} refined candidates{wide}: {linear:.2f} m / '
                 f'{math.degrees(angular):.1f} deg from the prediction, fit {fit:.2f} '
                 f'(search score {self.search.best.score:.2f})')
 
@@ -132,23 +157,6 @@ class Registration:
                 f'{ratio:.0%} as well (featureless corridor or symmetric room?)')
 
 
-def surface_fit(reference: ScanPoints, points: np.ndarray, pose: se2.Pose,
-                sigma: float) -> tuple[float, float]:
-    """Return how well ``points`` moved by ``pose`` lie on the reference surface.
-
-    The fit is the mean of ``exp(-d^2 / 2 sigma^2)`` over the points, ``d`` each one's
-    distance to the nearest reference point - the search's likelihood, evaluated
-    exactly at a refined pose; the overlap is the fraction with ``d <= 2 sigma``. Both
-    compare candidates and judge matches whatever the matcher and its residual metric.
-    """
-    if len(points) == 0 or len(reference) == 0:
-        return 0.0, 0.0
-    distance, _ = reference.bearing_index.nearest(se2.transform_points(pose, points),
-                                                  4.0 * sigma)
-    fit = float(np.mean(np.exp(-0.5 * np.square(distance / sigma))))
-    return fit, float(np.mean(distance <= 2.0 * sigma))
-
-
 class Registrar:
     """Runs the matcher, and the global search when the prediction or the match fails."""
 
@@ -156,6 +164,30 @@ class Registrar:
         """Create the registrar; matcher errors are reported to ``events``."""
         self.events = events
         self.usual = UsualLevel()
+        self.lost_since_ns: int | None = None
+        """Stamp of the reference of the first match not accepted since the last good
+        match (None while matches are accepted)."""
+        self._started_ns: int | None = None
+        """The reference stamp a registration started from, until it is accepted."""
+        self.elapsed_s = 0.0
+        """Seconds from the last good match to the scan being registered."""
+        self.history = StepHistory()
+        self._stamps = (0, 0)
+        """Stamps of the reference and the current scan being registered."""
+
+    def elapsed(self, reference: ScanPoints, current: ScanPoints) -> float:
+        """Return the seconds since the last good match: the window grows with them.
+
+        That is the time since the reference scan, or since the reference of the
+        first match that was not accepted after the last good one (the pipeline calls
+        :meth:`accepted` for every accepted match).
+        """
+        if self._started_ns is not None:  # the previous registration was not accepted
+            self.lost_since_ns = self._started_ns
+        start = reference.stamp_ns if self.lost_since_ns is None else min(
+            self.lost_since_ns, reference.stamp_ns)
+        self._started_ns = start
+        return max(0.0, (current.stamp_ns - start) * 1e-9)
 
     def register(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                  guess: se2.Pose, config: PipelineConfig, untrusted: str,
@@ -166,39 +198,101 @@ class Registrar:
         ``local`` is the match from the prediction when it was already made
         (:meth:`try_local`).
         """
+        if local is None:  # else try_local began this registration
+            self._begin(reference, current)
+        prediction = self.predict(guess, untrusted, reference, current)
         mode = config.search.global_search
         if mode == 'always' or (mode == 'recover' and untrusted):
             if mode == 'always' and local is None:
-                local = self.local_match(matcher, reference, current, guess)
-            return self._search(matcher, reference, current, guess, config,
-                                'always' if mode == 'always' else untrusted,
-                                local if mode == 'always' else None, '',
-                                trusted=not untrusted)
-        if local is None:
-            local = self.local_match(matcher, reference, current, guess)
-        failure = self.local_failure(local, guess, config)
-        if failure and mode == 'recover':
+                local = self.local_match(matcher, reference, current, guess, not untrusted)
+            elif mode != 'always':
+                local = None
             registration = self._search(matcher, reference, current, guess, config,
-                                        'local_failed', local, failure, trusted=True)
-            registration.failure_detail = self.describe_failure(failure, local, guess, config)
-            return registration
-        return Registration(local, local_failure=failure)
+                                        'always' if mode == 'always' else untrusted, local,
+                                        '', not untrusted, prediction)
+        else:
+            if local is None:
+                local = self.local_match(matcher, reference, current, guess, True)
+            failure = self.local_failure(local, guess, config)
+            if failure and mode == 'recover':
+                registration = self._search(matcher, reference, current, guess, config,
+                                            'local_failed', local, failure, True, prediction)
+                registration.failure_detail = self.describe_failure(failure, local, guess,
+                                                                    config)
+            else:
+                registration = Registration(local, local_failure=failure)
+        registration.prediction = prediction
+        return registration
+
+    def predict(self, guess: se2.Pose, untrusted: str, reference: ScanPoints,
+                current: ScanPoints) -> Prediction | None:
+        """Return what stands in where the scan is blind, with its measured error.
+
+        The trusted guess, or, when it is not trusted, the last well-constrained step's
+        motion if the scans come at a steady rate; None without enough history.
+        """
+        if not untrusted:
+            covariance = self.history.covariance(self.elapsed_s)
+            return None if covariance is None else Prediction(
+                np.array(guess, dtype=float), covariance, 'prior')
+        return self.history.last_step(reference.stamp_ns, current.stamp_ns)
+
+    def tell(self, registration: Registration, status: str, at: str) -> None:
+        """Count and say (throttled) what the evidence made of an integrated match."""
+        match = registration.match
+        if registration.widened:
+            self.events.count('search_widened')
+        if status != 'rejected' and match.extra.get('predicted'):
+            self.events.warn('prediction_used', f'match at {at} is blind along a direction; '
+                             f'{PREDICTION_SOURCES[match.extra["predicted"]]} stands in there, '
+                             'with its measured error as the covariance')
+        if status != 'rejected' and match.extra.get('poor_fit'):
+            window = registration.window
+            self.events.warn('poor_fit', f'match at {at} fits poorly (surface fit '
+                             f'{match.extra["surface_fit"]:.2f}, the best pose in '
+                             f'+-{window.linear:.1f} m / +-{math.degrees(window.angular):.0f}'
+                             ' deg): its covariance covers the window')
+        elif status != 'rejected' and match.extra.get('weak'):
+            sigma = np.sqrt(np.linalg.eigvalsh(match.extra['surface_covariance'])[-1])
+            self.events.warn('weakly_constrained', f'match at {at} is weakly constrained: '
+                             f'poses up to {sigma:.2f} m away (1 sigma) fit about as '
+                             'well; its covariance covers them')
 
     def try_local(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
-                  guess: se2.Pose, config: PipelineConfig) -> tuple[MatchResult, bool]:
+                  guess: se2.Pose, config: PipelineConfig) -> tuple[Registration, bool]:
         """Run the match from a trusted prediction; return it and whether it passed.
 
         Passed: no :meth:`local_failure`, the result :meth:`register` would return
-        without searching (with ``global_search: always`` nothing passes here).
+        without searching (with ``global_search: always`` nothing passes here). When it
+        did not pass, :meth:`register` goes on with its match (``local``).
         """
-        local = self.local_match(matcher, reference, current, guess)
+        self._begin(reference, current)
+        local = self.local_match(matcher, reference, current, guess, True)
         passed = (config.search.global_search != 'always'
                   and not self.local_failure(local, guess, config))
-        return local, passed
+        registration = Registration(local)
+        registration.prediction = self.predict(guess, '', reference, current)
+        return registration, passed
+
+    def _begin(self, reference: ScanPoints, current: ScanPoints) -> None:
+        """Start registering ``current`` against ``reference``: the time and the stamps."""
+        self.elapsed_s = self.elapsed(reference, current)
+        self._stamps = (reference.stamp_ns, current.stamp_ns)
+
+    def settled(self) -> None:
+        """Record that the step was accepted from another reference: nothing was lost."""
+        self.lost_since_ns = self._started_ns = None
 
     def accepted(self, match: MatchResult) -> None:
-        """Record an accepted match: its fit joins the scans' usual level."""
+        """Record an accepted match: its fit joins the scans' usual level.
+
+        A well-constrained one (not degenerate, weak, ambiguous or poorly fitting)
+        joins the step history the blind prediction is measured on.
+        """
         self.usual.add(match)
+        self.lost_since_ns = self._started_ns = None
+        well = not (match.degenerate or any(match.extra.get(flag) for flag in WEAK_FLAGS))
+        self.history.add(*self._stamps, match.pose, well)
 
     def local_failure(self, match: MatchResult, guess: se2.Pose,
                       config: PipelineConfig) -> str:
@@ -229,15 +323,20 @@ class Registrar:
         return describe_rejection(reason, match, guess, config)
 
     def local_match(self, matcher: ScanMatcher, reference: ScanPoints,
-                    current: ScanPoints, guess: se2.Pose) -> MatchResult:
+                    current: ScanPoints, guess: se2.Pose,
+                    predicted: bool = False) -> MatchResult:
         """Run the matcher; an internal error becomes a failed match, never a crash.
+
+        From a trusted prediction (``predicted``) it refines the prediction
+        (:meth:`.ScanMatcher.match_from_prediction`), else it matches from a far guess.
 
         Odometry must keep running on input nobody foresaw; the error is counted as
         ``matcher_error`` and said (throttled) so that it gets reported and fixed.
         The matcher's ``covariance_scale`` calibration is applied here, once for all.
         """
         try:
-            match = matcher.match(reference, current, guess)
+            run = matcher.match_from_prediction if predicted else matcher.match
+            match = run(reference, current, guess)
         except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as error:
             self.events.warn('matcher_error', f'{matcher.name} failed on a scan: '
                              f'{error!r}')
@@ -250,66 +349,19 @@ class Registrar:
 
     def _search(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                 guess: se2.Pose, config: PipelineConfig, trigger: str,
-                local: MatchResult | None, failure: str, trusted: bool) -> Registration:
-        """Search the window, refine the best poses, keep the candidate that fits best."""
-        search_config = config.search
-        window = search_config.window()
-        result = correlative_search(
-            reference, current, guess, window, search_config.global_search_candidates,
-            min(KEEP_RATIO, search_config.global_search_ambiguity))
-        candidates = [] if result is None else [
-            self.local_match(matcher, reference, current, peak.pose) for peak in result.peaks]
-        if local is not None:
-            candidates.append(local)
-        converged = [m for m in candidates if m.converged and se2.is_finite_pose(m.pose)]
-        registration = Registration(local if local is not None else MatchResult.failure(
-            guess, reason='search found nothing' if result is None else ''), trigger, failure,
-            search=result, candidates=len(candidates), trusted=trusted)
-        if not converged:
-            return registration
-        # Candidates inside the window first: the window is the gate they are judged by.
-        pool = [m for m in converged if searched_rejection_reason(
-            m, guess, config.acceptance, window) is None] or converged
-        points = search_points(current, window.resolution)
-        fits, overlaps = np.array([surface_fit(reference, points, m.pose,
-                                               window.kernel_sigma) for m in pool]).T
-        scale = result.length_scale if result is not None else current.length_scale
-        separation = result.separation if result is not None else 3.0 * window.resolution
-        ambiguity = search_config.global_search_ambiguity
-        best = int(np.argmax(fits))
-        if trusted:
-            # Among poses the scans cannot tell apart, the one nearest a trusted
-            # prediction is the best guess.
-            alike = np.flatnonzero(fits >= ambiguity * fits[best])
-            near = pose_distance(np.array([pool[i].pose for i in alike]), guess, scale)
-            best = int(alike[int(np.argmin(near))])
-        if local is not None and any(m is local for m in pool) and \
-                pose_distance(local.pose, pool[best].pose, scale)[0] <= separation:
-            # The fit tells solutions apart, not millimetres within one: when the match
-            # from the prediction converged to the chosen solution, it stands.
-            best = next(i for i, m in enumerate(pool) if m is local)
-        chosen = pool[best]
-        chosen.extra['surface_fit'] = float(fits[best])
-        chosen.extra['surface_overlap'] = float(overlaps[best])
-        registration.match = chosen
-        registration.alternatives = distinct_alternatives(
-            pool, fits / max(float(fits[best]), 1e-12), chosen.pose, scale, separation,
-            ambiguity)
-        return registration
+                local: MatchResult | None, failure: str, trusted: bool,
+                prediction: Prediction | None) -> Registration:
+        """Search the windows, refine the best poses, keep the candidate that fits best.
 
-
-def distinct_alternatives(candidates: list[MatchResult], fit_ratios: np.ndarray,
-                          chosen: se2.Pose, length_scale: float, separation: float,
-                          ambiguity: float) -> list[tuple[np.ndarray, float]]:
-    """Return the candidates that fit at least ``ambiguity`` as well as the chosen pose.
-
-    Only those farther than ``separation`` from the chosen pose and from each other
-    (rotation measured as the arc at ``length_scale``) count, with their fit ratio.
-    """
-    alternatives: list[tuple[np.ndarray, float]] = []
-    for match, ratio in zip(candidates, fit_ratios):
-        distinct = all(pose_distance(match.pose, other, length_scale)[0] > separation
-                       for other in [chosen] + [pose for pose, _ in alternatives])
-        if distinct and ratio >= ambiguity:
-            alternatives.append((match.pose.copy(), float(ratio)))
-    return alternatives
+        :func:`.recovery.search_and_choose`; its refinements are :meth:`local_match`.
+        """
+        choice = search_and_choose(
+            lambda pose: self.local_match(matcher, reference, current, pose), reference,
+            current, guess, config, self.elapsed_s, local, trusted, prediction)
+        match = choice.match
+        if match is None:
+            match = local if local is not None else MatchResult.failure(
+                guess, reason='search found nothing' if choice.search is None else '')
+        return Registration(match, trigger, failure, search=choice.search,
+                            alternatives=choice.alternatives, candidates=choice.candidates,
+                            trusted=trusted, window=choice.window, widened=choice.widened)

@@ -41,6 +41,7 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 from laser_odom.core.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
     REAL_REFERENCE_NOISE, REFERENCE_MODES, search_timing, SearchTimingRow, SIMULATED,
+    simulated_scanner,
     wheel_odometry_row)
 from laser_odom.core.config import pipeline_config_from_params
 from laser_odom.core.consistency import NO_REFERENCE_NOISE, ReferenceNoise
@@ -238,9 +239,14 @@ def reference_noise(args: argparse.Namespace, name: str) -> ReferenceNoise:
     Anything else (a real log's SLAM-corrected poses, a bag's reference) takes
     ``--reference-noise-m`` and ``--reference-noise-deg``.
     """
-    if name in SIMULATED or any(name in grid for grid in GRIDS.values()):
+    if simulated_here(name):
         return NO_REFERENCE_NOISE
     return ReferenceNoise.degrees(args.reference_noise_m, args.reference_noise_deg)
+
+
+def simulated_here(name: str) -> bool:
+    """Tell whether a dataset is simulated by the benchmark (truth as its reference)."""
+    return name in SIMULATED or any(name in grid for grid in GRIDS.values())
 
 
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
@@ -284,6 +290,8 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
                     label = ' '.join(filter(None, (name, matcher, prior, deskew, reference)))
                     bar = ProgressBar(label, len(dataset.scans)) if progress else None
                     config = pipeline_config_from_params({**values, 'matcher': matcher})
+                    if simulated_here(name):
+                        config = simulated_scanner(config)
                     rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
                                               config=config, deskew=deskew,
                                               reference_noise=noise, reference=reference))

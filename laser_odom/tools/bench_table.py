@@ -22,7 +22,7 @@ COLUMNS = [
     ('rpe_trans_mean', 9, 4, 'RPEt mean'), ('rpe_trans_rms', 8, 4, 'RPEt RMS'),
     ('rpe_rot_mean', 9, 3, 'RPEr mean'), ('rpe_rot_rms', 8, 3, 'RPEr RMS'),
     ('ate', 7, 3, 'ATE'), ('drift_trans', 7, 2, 'drift%'), ('drift_rot', 7, 3, 'deg/m'),
-    ('failed', 6, None, 'failed'),
+    ('failed', 6, None, 'failed'), ('silent', 6, None, 'silent'),
     ('median_ms', 7, 2, 'med ms'), ('p95_ms', 7, 2, 'p95 ms'),
 ]
 """Table columns: row field, width, decimals (None: as is), title."""
@@ -95,7 +95,9 @@ def format_table(rows: Sequence[BenchRow]) -> str:
         '# RPE between consecutive reference poses (t: m, r: deg); ATE [m] after SE(2) '
         'alignment; drift: KITTI-style error per path length over segments of '
         f'{"/".join(f"{length:g}" for length in lengths) or "50"} m of path (% and deg/m); '
-        'failed: RPE > 0.5 m or > 10 deg; deskew: the pipeline setting '
+        'failed: RPE > 0.5 m or > 10 deg; silent: failed steps that the '
+        'published step covariance did not cover (NEES e^T (S + 2R)^-1 e above 16.27, the '
+        '99.9 % bound; the others were announced); deskew: the pipeline setting '
         '(auto: on when the scans have a time_increment); reference: matched against the '
         'previous scan or the local map'] + (
         [f'# n/a: no reference for {", ".join(unscored)} (--bag without --reference or '

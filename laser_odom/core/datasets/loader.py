@@ -30,10 +30,12 @@ KNOWN_DATASETS: dict[str, str] = {
     'intel-kf': 'intel/intel-corrected.log.gz',
 }
 #: Large-motion datasets: every k-th scan of a known one (``name: (known name, k)``).
-#: fr079's scans then lie 0.5 m / 10 deg (k = 5) or 1 m / 19 deg (k = 10) apart, 1-2 s.
+#: fr079's scans then lie 0.5 m / 10 deg (k = 5), 1 m / 19 deg (k = 10, 1-2 s) or
+#: 2 m / 38 deg apart (k = 20, 2-5 s; up to 2.3 m and 166 deg).
 SUBSAMPLED_DATASETS: dict[str, tuple[str, int]] = {
     'fr079/5': ('fr079', 5),
     'fr079/10': ('fr079', 10),
+    'fr079/20': ('fr079', 20),
 }
 CARMEN_SUFFIXES = ('.clf', '.log')
 MAT_SUFFIXES = ('.mat',)

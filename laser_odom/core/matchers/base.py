@@ -52,6 +52,11 @@ class MatcherConfig:
         'n^falloff and the noise of the scans takes the rest (icp, plicp: 1, their pairing '
         'errors fade as the scans move apart; nicp, imls: 0, a surface model errs alike).',
         0.0, 3.0)
+    covariance_heading_walk: float = param(
+        1.8e-4, 'Heading variance [rad^2] the integrated pose gains per metre travelled '
+        'from what a real scanner gets wrong for many steps (range and angle calibration, '
+        'mixed pixels, reflections): 1.8e-4 (0.77 deg per square-root metre) fits the '
+        'real logs; a simulated scanner has none of it (0).', 0.0, 1.0)
     map_covariance_scale: float = param(
         1.6, 'reference: local_map - further factor on the covariance of a match against the '
         "map (the view's surfaces are averages, not one scan's points; calibrated per matcher "
@@ -108,6 +113,15 @@ class ScanMatcher(ABC):
     def match(self, reference: ScanPoints, current: ScanPoints,
               initial_guess: se2.Pose) -> MatchResult:
         """Estimate the pose of ``current`` in the frame of ``reference``."""
+
+    def match_from_prediction(self, reference: ScanPoints, current: ScanPoints,
+                              prediction: se2.Pose) -> MatchResult:
+        """Refine a trusted ``prediction``: the motion left to find is small.
+
+        The default is :meth:`match`; a matcher with a wide first stage for far guesses
+        (nicp's capture stage) leaves it out here.
+        """
+        return self.match(reference, current, prediction)
 
     def prepare_reference(self, scan: ScanPoints) -> None:
         """Build, in ``scan``'s cache, what only matching *against* it needs.

@@ -116,6 +116,11 @@ class SearchResult:
     alternatives: list[SearchPeak] = field(default_factory=list)
     grid_seconds: float = 0.0
     tree_seconds: float = 0.0
+    poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """Every pose of the window scoring at least ``keep_ratio`` of the best (best first):
+    the top of the score surface, from which its spread is measured."""
+    scores: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Their scores (0..1)."""
 
     @property
     def best(self) -> SearchPeak:
@@ -164,13 +169,16 @@ that score almost as well as the peak - the candidates a matcher may prefer afte
 refining, and the evidence of ambiguity - are found too."""
 
 
-def _branch_and_bound(tree: SearchTree, keep_ratio: float) -> tuple[np.ndarray, np.ndarray, bool]:
+def _branch_and_bound(tree: SearchTree, keep_ratio: float,
+                      keep_margin: int = 0) -> tuple[np.ndarray, np.ndarray, bool]:
     """Return the leaves scoring at least ``keep_ratio`` of the best, and their scores.
 
-    Also whether the search was exhaustive (no level exceeded ``MAX_NODES``). Breadth
-    first, one batch per level: nodes bounded below ``keep_ratio`` times the
-    best exact score found so far are pruned, the rest split. Greedy dives from the
-    best-bounded nodes of each level find a high exact score early.
+    Leaves within ``keep_margin`` (in the tree's integer score units) of the best are
+    kept too. Also returns whether the search was exhaustive (no level exceeded
+    ``MAX_NODES``). Breadth first, one batch per level: nodes bounded below both
+    ``keep_ratio`` times the best exact score found so far and that score less
+    ``keep_margin`` are pruned, the rest split. Greedy dives from the best-bounded
+    nodes of each level find a high exact score early.
     """
     nodes = tree.top_nodes()
     best = 0
@@ -183,7 +191,7 @@ def _branch_and_bound(tree: SearchTree, keep_ratio: float) -> tuple[np.ndarray, 
         else:
             for index in np.argsort(values)[::-1][:DIVES]:
                 best = max(best, tree.dive(level, nodes[index]))
-        keep = values >= keep_ratio * best
+        keep = values >= min(keep_ratio * best, best - keep_margin)
         nodes, values = nodes[keep], values[keep]
         if len(nodes) > MAX_NODES:
             exhaustive = False
@@ -221,18 +229,22 @@ def search_tree(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
 
 def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
                        window: SearchWindow, candidates: int = 3,
-                       keep_ratio: float = KEEP_RATIO) -> SearchResult | None:
+                       keep_ratio: float = KEEP_RATIO,
+                       keep_margin: float = 0.0) -> SearchResult | None:
     """Find the best poses of ``current`` in ``reference``'s frame within the window.
 
     Returns up to ``candidates`` distinct peaks, best first, and the ambiguity of the
-    best; None when either scan has too few points to score.
+    best; None when either scan has too few points to score. Every pose scoring at
+    least ``keep_ratio`` of the best, or within ``keep_margin`` (score units, 0..1) of
+    it, is kept in the result (the top of the score surface).
     """
     started = time.perf_counter()
     tree = search_tree(reference, current, guess, window)
     if tree is None:
         return None
     gridded = time.perf_counter()
-    leaves, values, exhaustive = _branch_and_bound(tree, keep_ratio)
+    margin = int(keep_margin * LIKELIHOOD_STEPS * len(tree.points))
+    leaves, values, exhaustive = _branch_and_bound(tree, keep_ratio, margin)
     if len(leaves) == 0:
         return None
 
@@ -247,7 +259,8 @@ def correlative_search(reference: ScanPoints, current: ScanPoints, guess: se2.Po
                         separation=separation, length_scale=length_scale,
                         nodes=tree.scored, points=len(tree.points), exhaustive=exhaustive,
                         alternatives=peaks[1:], grid_seconds=gridded - started,
-                        tree_seconds=time.perf_counter() - gridded)
+                        tree_seconds=time.perf_counter() - gridded, poses=poses,
+                        scores=scores)
 
 
 def pose_distance(a: np.ndarray, b: np.ndarray, length_scale: float) -> np.ndarray:

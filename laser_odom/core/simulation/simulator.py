@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from laser_odom.core import se2
 from laser_odom.core.scan import LaserMounting
 from laser_odom.core.simulation.laser import beam_base_poses, LaserModel, render_scan
 from laser_odom.core.simulation.motions import DEFAULT_MOTION, Motion, motion_profile
@@ -92,3 +93,27 @@ def simulate(world: str | World = DEFAULT_WORLD, duration: float = 60.0,
     return Dataset(name=f'sim-{w.name}{suffix}-seed{seed}',
                    scans=[scan for scan, keep in zip(scans, kept) if keep],
                    odometry=odometry, reference=Trajectory(scan_stamps[kept], truth[kept]))
+
+
+def drop_to_steps(dataset: Dataset, distance: float, angle: float) -> Dataset:
+    """Return ``dataset`` with scans dropped so that each step is as large as allowed.
+
+    Every scan is kept whose successor would carry the robot farther than ``distance``
+    [m] or turn it more than ``angle`` [rad] from the last kept scan (by the
+    reference, which must hold a pose per scan): a driver, a link or a busy node that
+    lost everything in between. The first scan is kept; the reference keeps the poses
+    of the kept scans.
+    """
+    poses = dataset.reference.poses
+    if len(poses) != len(dataset.scans):
+        raise ValueError('dropping to steps needs a reference pose for every scan')
+    kept = [0]
+    for index in range(1, len(poses)):
+        step = se2.relative(poses[kept[-1]], poses[index])
+        too_far = math.hypot(step[0], step[1]) > distance or abs(step[2]) > angle
+        if too_far and index - 1 > kept[-1]:
+            kept.append(index - 1)
+    chosen = np.array(kept)
+    return Dataset(f'{dataset.name}-steps', [dataset.scans[i] for i in kept],
+                   dataset.odometry, Trajectory(dataset.reference.stamps_ns[chosen],
+                                                poses[chosen]))

@@ -47,7 +47,7 @@ the global search."""
 
 NOT_SEARCHED = ('covariance_scale', 'covariance_shared_scan', 'covariance_bias',
                 'covariance_bias_correlation', 'covariance_baseline_falloff',
-                'map_covariance_scale', 'map_covariance_shared')
+                'covariance_heading_walk', 'map_covariance_scale', 'map_covariance_shared')
 """Matcher parameters left out: they calibrate the covariance, not the pose."""
 
 RANGES: dict[str, tuple[float, float]] = {
