@@ -289,3 +289,13 @@ def test_the_documented_conversion_of_a_keyframe_log_works(shared_data_dir, tmp_
     with BagReader(out) as bag:
         assert bag.message_count('/scan') == 1988 and bag.message_count('/ground_truth') == 686
     assert len(read_tum(Path(str(out) + '.tum'))) == 686
+
+
+def test_the_examples_make_the_folder_they_write_into():
+    """The tools never create folders: a page's first example writing to out/ makes it."""
+    for page in [README, *sorted(DOCS.glob('*.md'))]:
+        commands = _shell_commands(page.read_text())
+        first = next((i for i, words in enumerate(commands)
+                      if any(w.startswith('out/') for w in words)), None)
+        if first is not None:
+            assert ['mkdir', '-p', 'out'] in commands[:first], page.name
