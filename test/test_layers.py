@@ -13,8 +13,9 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / 'laser_odom'
 
-PIPELINE_LAYER = ('acceptance', 'benchmark', 'config', 'pipeline', 'priors', 'registration',
-                  'runner', 'settings', 'tuning')
+PIPELINE_LAYER = ('acceptance', 'announce', 'benchmark', 'config', 'map_reference',
+                  'map_registration', 'pipeline', 'priors', 'registration', 'runner',
+                  'settings', 'tuning')
 """Modules of ``laser_odom.core`` that assemble the matchers into the odometry."""
 
 

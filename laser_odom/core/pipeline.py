@@ -16,16 +16,16 @@ import time
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.acceptance import describe_rejection, judge_match, MatchVerdict
+from laser_odom.core.acceptance import judge_match
+from laser_odom.core.announce import say_why
 from laser_odom.core.config import PipelineConfig
 from laser_odom.core.deskew import deskew_change, DESKEW_EVENTS, deskewed, twist_of_step
 from laser_odom.core.events import EventLog
 from laser_odom.core.map_registration import JudgedMatch, MAP_EVENTS, MapRegistrar
 from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion import MotionModel
-from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
-from laser_odom.core.registration import (
-    EVIDENCE_EVENTS, Registrar, Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS)
+from laser_odom.core.pose_uncertainty import PoseUncertainty, step_error
+from laser_odom.core.registration import EVIDENCE_EVENTS, Registrar, SEARCH_TRIGGERS
 from laser_odom.core.scan import LaserScan, ScanPoints
 from laser_odom.core.validation import REJECTIONS, ScanValidator
 
@@ -296,12 +296,16 @@ class OdometryPipeline:
         else:
             judged = self.map_registrar.register(self.matcher, self.registrar, self.keyframe,
                                                  current, guess, self.config, untrusted)
-        self._say_why(judged.registration, judged.verdict, guess, stamp_ns)
+        say_why(self.events, judged.registration, judged.verdict, guess, stamp_ns,
+                self.config)
+        self.registrar.tell(judged.registration, judged.verdict.status,
+                            f't={stamp_ns * 1e-9:.3f}')
         if current.times is not None and judged.verdict.status != 'rejected':
             current, judged = self._deskew_again(current, sweep_dt, judged)
         registration, verdict = judged.registration, judged.verdict
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
-        step_covariance, model = self._error_model(judged)
+        step_covariance, model = step_error(judged.verdict.status, judged.verdict.covariance,
+                                            self.matcher.config, judged.from_map)
         self.scans_after_keyframe += 1
         self.uncertainty = self.keyframe_uncertainty.propagate(
             self.keyframe_pose, verdict.pose, step_covariance, model,
@@ -342,26 +346,6 @@ class OdometryPipeline:
                                 twist_cov, verdict.status, registration.match,
                                 scan_points=current.points, step_covariance=step_covariance)
 
-    def _error_model(self, judged: JudgedMatch) -> tuple[np.ndarray, StepErrorModel]:
-        """Return the step covariance and how its error compounds (:mod:`.pose_uncertainty`).
-
-        Only a good match's error is noise that the next match cancels (the shared scan,
-        or the map both match against); the covariance of a degenerate match (no
-        information along a corridor) or of a rejected one (the prediction) is
-        ignorance, which stays: those compound white. A match against the local map
-        has the matcher's ``map_covariance_scale`` and, when good, shares all but the
-        white rest of its error with the next (``map_covariance_shared``).
-        """
-        verdict, matcher_config = judged.verdict, self.matcher.config
-        if verdict.status == 'rejected':
-            return verdict.covariance, StepErrorModel()
-        if not judged.from_map:
-            return verdict.covariance, (StepErrorModel.of(matcher_config)
-                                        if verdict.status == 'matched' else StepErrorModel())
-        covariance = verdict.covariance * matcher_config.map_covariance_scale
-        return covariance, (StepErrorModel.of_map(matcher_config)
-                            if verdict.status == 'matched' else StepErrorModel())
-
     def _deskew_again(self, current: ScanPoints, sweep_dt: float, judged: JudgedMatch
                       ) -> tuple[ScanPoints, JudgedMatch]:
         """De-skew with the twist the match measured, and match again if it matters.
@@ -393,40 +377,6 @@ class OdometryPipeline:
             return current, judged
         return again_points, judged._replace(reference=reference, registration=again,
                                              verdict=second)
-
-    def _say_why(self, registration: Registration, verdict: MatchVerdict, guess: se2.Pose,
-                 stamp_ns: int) -> None:
-        """Count and say (throttled) the global search, ambiguity and rejection, with numbers."""
-        at = f't={stamp_ns * 1e-9:.3f}'
-        match = registration.match
-        trigger = registration.trigger
-        if trigger in ROUTINE_TRIGGERS:
-            self.events.count(f'search_{trigger}')
-        elif trigger:
-            why = SEARCH_TRIGGERS[trigger]
-            if registration.local_failure:
-                why += f' ({registration.failure_detail})'
-            self.events.warn(f'search_{trigger}', f'global search at {at}: {why}; '
-                             f'{registration.outcome(guess)}')
-        if verdict.status == 'rejected':
-            reason = match.extra.get('rejection', 'unknown')
-            if self.config.acceptance.rejected_motion != 'predict':
-                action = 'holding the pose'
-            elif self.config.motion.prior == 'none':
-                action = 'holding the pose (prior none: no prediction to advance by)'
-            else:
-                action = 'advancing by the prediction'
-            detail = describe_rejection(reason, match, guess, self.config)
-            searched = (f'; the global search ran ({SEARCH_TRIGGERS[trigger]}) and found '
-                        f'{registration.outcome(guess)}'
-                        if trigger in ROUTINE_TRIGGERS else '')
-            self.events.warn('rejected_' + reason,
-                             f'match at {at} rejected ({detail}){searched}; {action}')
-        elif registration.alternatives:
-            self.events.warn('ambiguous', f'match at {at} is ambiguous: '
-                             f'{registration.describe_alternatives()}; reported degenerate '
-                             'with a covariance that covers the alternatives')
-        self.registrar.tell(registration, verdict.status, at)
 
     def _use_map_view(self) -> ScanPoints:
         """Make the local map seen from the current pose the reference of the next match.

@@ -134,6 +134,27 @@ class StepErrorModel:
         return 1.0 - rest, self.bias_share * rest
 
 
+def step_error(status: str, covariance: np.ndarray, matcher_config: object,
+               from_map: bool = False) -> tuple[np.ndarray, StepErrorModel]:
+    """Return a judged match's step covariance and how its error compounds.
+
+    Only a good (``matched``) match's error is noise that the next match cancels (the
+    shared scan, or the map both match against); the covariance of a degenerate match
+    (no information along a corridor) or of a rejected one (the prediction) is
+    ignorance, which stays: those compound white. A match against the local map
+    (``from_map``) has the matcher's ``map_covariance_scale`` and shares all but a
+    white rest of its error with the next (:meth:`StepErrorModel.of_map`).
+    """
+    if status == 'rejected':
+        return covariance, StepErrorModel()
+    if from_map:
+        covariance = covariance * matcher_config.map_covariance_scale
+    if status != 'matched':
+        return covariance, StepErrorModel()
+    return covariance, (StepErrorModel.of_map(matcher_config) if from_map
+                        else StepErrorModel.of(matcher_config))
+
+
 @dataclass(frozen=True)
 class PoseUncertainty:
     """Joint covariance (9x9) of the pose error, the newest scan's noise and the bias.
