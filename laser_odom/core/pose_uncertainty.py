@@ -120,9 +120,11 @@ class StepErrorModel:
         """Return the model of matches against the local map a matcher configuration declares.
 
         Consecutive matches against the map share the map's error, which does not add
-        up (``map_covariance_shared``); what the map does not share is white.
+        up (``map_covariance_shared``); what the map does not share is white. A real
+        scanner's heading walk (``covariance_heading_walk``) errs the map along with the
+        scans, so it stays.
         """
-        return cls(config.map_covariance_shared)
+        return cls(config.map_covariance_shared, heading_walk=config.covariance_heading_walk)
 
     def shares(self, scans_apart: int = 1) -> tuple[float, float]:
         """Return the shared-scan and bias shares of a match spanning ``scans_apart`` scans.
