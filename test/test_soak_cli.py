@@ -10,7 +10,8 @@ import pytest
 from laser_odom.tools import soak
 
 ROOT = Path(__file__).resolve().parents[1]
-OPTIONS = ('--scans', '--matcher', '--world', '--beams', '--report-every', '--limit-mib')
+OPTIONS = ('--scans', '--matcher', '--reference', '--world', '--beams', '--report-every',
+           '--limit-mib')
 
 
 def test_help_lists_every_option_with_its_text_and_exits_0():
@@ -62,7 +63,7 @@ def test_a_short_soak_prints_the_table_and_passes(monkeypatch, capsys):
     assert soak.main(['--scans', '60', '--report-every', '20', '--beams', '90',
                       '--matcher', 'icp', '--limit-mib', '1000']) == 0
     out = capsys.readouterr().out
-    assert out.startswith('# soak: 60 scans, matcher icp, world office, 90 beams')
+    assert out.startswith('# soak: 60 scans, matcher icp, reference scan, world office, 90 beams')
     assert [line.split()[0] for line in out.splitlines()[2:-1]] == ['20', '40', '60']
     assert '# resident memory growth after warm-up' in out
 
