@@ -119,14 +119,12 @@ class MapRegistrar:
         the map, featureless along it, stays consistent). A rejected match restarts the
         map from the current scan at the pose the pipeline took.
         """
-        if judged.verdict.status != 'rejected':
-            # The step is known: the registrar that did not make it has not lost track.
-            other = self.scan_registrar if judged.from_map else registrar
-            other.settled()
         if judged.verdict.status == 'rejected':
             self.map.restart(current, pose)
             self.events.count('map_restarted')
             return
+        # The step is known: the registrar that did not make it has not lost track.
+        (self.scan_registrar if judged.from_map else registrar).settled()
         usual = judged.registrar.usual
         fits = (judged.from_map and not judged.registration.alternatives
                 and fits_usual(judged.registration.match, usual.residual(),
