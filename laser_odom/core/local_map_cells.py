@@ -191,53 +191,58 @@ def refresh_blocks(changed: np.ndarray, inverse_resolution: float, refresh: int,
     1979). Returns the number of blocks recomputed.
     """
     done = 0
+    block = np.empty(9, dtype=np.int64)
+    neighbours = np.empty(9, dtype=np.int64)
     for c0 in changed:
-        key0 = ints[c0, KEY]
-        ix0, iy0 = key0 >> 32, key0 & 0xFFFFFFFF
-        for ox in range(-1, 2):
-            for oy in range(-1, 2):
-                c = find_cell(slot_keys, slot_cells, ((ix0 + ox) << 32) | (iy0 + oy))
-                if c < 0 or ints[c, REFRESHED] == refresh:
-                    continue
-                ints[c, REFRESHED] = refresh
-                _pool_block(c, floats, ints, slot_keys, slot_cells)
-                done += 1
+        for k in range(_block_cells(ints[c0, KEY], slot_keys, slot_cells, block)):
+            c = block[k]
+            if ints[c, REFRESHED] == refresh:
+                continue
+            ints[c, REFRESHED] = refresh
+            _pool_block(c, floats, ints, slot_keys, slot_cells, neighbours)
+            done += 1
     return done
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _block_cells(key: int, slot_keys: np.ndarray, slot_cells: np.ndarray,
+                 out: np.ndarray) -> int:
+    """Write the cells of the 3x3 block around the cell ``key`` into ``out``; return how many."""
+    ix, iy = key >> 32, key & 0xFFFFFFFF
+    count = 0
+    for ox in range(-1, 2):
+        for oy in range(-1, 2):
+            c = find_cell(slot_keys, slot_cells, ((ix + ox) << 32) | (iy + oy))
+            if c >= 0:
+                out[count] = c
+                count += 1
+    return count
 
 
 @numba.njit(cache=True, nogil=True)
 def _pool_block(c: int, floats: np.ndarray, ints: np.ndarray, slot_keys: np.ndarray,
-                slot_cells: np.ndarray) -> None:
-    """Recompute cell ``c``'s block moments from the cells around it."""
-    key = ints[c, KEY]
-    ix, iy = key >> 32, key & 0xFFFFFFFF
+                slot_cells: np.ndarray, block: np.ndarray) -> None:
+    """Recompute cell ``c``'s block moments from the cells around it (``block``: scratch)."""
+    cells = _block_cells(ints[c, KEY], slot_keys, slot_cells, block)
     weight = sx = sy = 0.0
-    cells = 0
-    for ox in range(-1, 2):
-        for oy in range(-1, 2):
-            n = find_cell(slot_keys, slot_cells, ((ix + ox) << 32) | (iy + oy))
-            if n < 0:
-                continue
-            w = floats[n, WEIGHT]
-            weight += w
-            sx += w * floats[n, MEAN_X]
-            sy += w * floats[n, MEAN_Y]
-            cells += 1
+    for k in range(cells):
+        n = block[k]
+        w = floats[n, WEIGHT]
+        weight += w
+        sx += w * floats[n, MEAN_X]
+        sy += w * floats[n, MEAN_Y]
     if weight <= 0.0:
         floats[c, BLOCK_WEIGHT:] = 0.0
         return
     mx, my = sx / weight, sy / weight
     sxx = sxy = syy = 0.0
-    for ox in range(-1, 2):
-        for oy in range(-1, 2):
-            n = find_cell(slot_keys, slot_cells, ((ix + ox) << 32) | (iy + oy))
-            if n < 0:
-                continue
-            w = floats[n, WEIGHT]
-            dx, dy = floats[n, MEAN_X] - mx, floats[n, MEAN_Y] - my
-            sxx += floats[n, S_XX] + w * dx * dx
-            sxy += floats[n, S_XY] + w * dx * dy
-            syy += floats[n, S_YY] + w * dy * dy
+    for k in range(cells):
+        n = block[k]
+        w = floats[n, WEIGHT]
+        dx, dy = floats[n, MEAN_X] - mx, floats[n, MEAN_Y] - my
+        sxx += floats[n, S_XX] + w * dx * dx
+        sxy += floats[n, S_XY] + w * dx * dy
+        syy += floats[n, S_YY] + w * dy * dy
     floats[c, BLOCK_WEIGHT], floats[c, BLOCK_X], floats[c, BLOCK_Y] = weight, mx, my
     floats[c, BLOCK_XX], floats[c, BLOCK_XY], floats[c, BLOCK_YY] = sxx, sxy, syy
     floats[c, BLOCK_CELLS] = cells
