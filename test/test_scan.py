@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.scan import LaserMounting, LaserScan, scan_to_points
@@ -62,7 +63,8 @@ def test_tree_is_built_once():
     assert pts.bearing_index is pts.bearing_index
 
 
-def validator(min_valid_points=3, deskew='auto', scan_stamp='first_beam', mounting=None):
+def validator(min_valid_points=3, deskew='auto', scan_stamp='first_beam', mounting=None,
+              max_beams=2000):
     """Return a ScanValidator whose events are kept (said) in a list, on a frozen clock."""
     from laser_odom.core.config import MountingConfig, ScanConfig
     from laser_odom.core.events import EventLog
@@ -70,7 +72,7 @@ def validator(min_valid_points=3, deskew='auto', scan_stamp='first_beam', mounti
     said = []
     events = EventLog(said.append, clock=lambda: 0.0)
     config = ScanConfig(min_valid_points=min_valid_points, deskew=deskew,
-                        scan_stamp=scan_stamp)
+                        scan_stamp=scan_stamp, max_beams=max_beams)
     return ScanValidator(config, mounting or MountingConfig(), events), said
 
 
@@ -232,3 +234,33 @@ def test_validator_beam_times_fall_back_on_the_last_valid_increment_of_that_beam
     np.testing.assert_allclose(points.times, (np.arange(8) - 7) * 1e-3)
     off, _ = validator(deskew='off')
     assert off.check(field_scan(time_increment=1e-3))[0].times is None
+
+
+@pytest.mark.parametrize('scan_stamp, time_increment, kept', [
+    ('first_beam', 1e-4, 0), ('last_beam', 1e-4, 9), ('first_beam', -1e-4, 9),
+    ('last_beam', -1e-4, 0)])
+def test_a_scan_over_max_beams_is_matched_on_every_kth_beam_keeping_the_stamped_one(
+        scan_stamp, time_increment, kept):
+    """10 beams, max_beams 4: one beam in 3; the beam the stamp belongs to is kept."""
+    check, said = validator(scan_stamp=scan_stamp, max_beams=4)
+    ranges = 2.0 + 0.1 * np.arange(10)
+    scan = field_scan(n=10, ranges=ranges, time_increment=time_increment, scan_time=0.1,
+                      intensities=np.arange(10.0))
+    full, _ = validator(scan_stamp=scan_stamp, max_beams=0)[0].check(scan)
+    thinned = check.thin(scan)
+    points, reason = check.check(thinned)
+    beams = np.arange(kept % 3, 10, 3)
+    assert reason == '' and len(points) == len(beams)
+    np.testing.assert_allclose(points.points, full.points[beams], atol=1e-12)
+    np.testing.assert_allclose(points.times, full.times[beams], atol=1e-15)
+    np.testing.assert_allclose(thinned.intensities, np.arange(10.0)[beams])
+    assert check.events.counters['length_mismatch'] == 0
+    check.thin(scan)
+    assert check.events.counters['scan_thinned'] == 2
+    assert sum('more than max_beams (4): one beam in 3 is matched' in s for s in said) == 1
+
+
+def test_max_beams_zero_or_above_the_count_keeps_the_scan():
+    scan = field_scan(n=10)
+    assert validator(max_beams=0)[0].thin(scan) is scan
+    assert validator(max_beams=10)[0].thin(scan) is scan

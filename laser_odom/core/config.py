@@ -33,6 +33,10 @@ class ScanConfig:
 
     min_valid_points: int = param(
         20, 'Scans with fewer valid readings than this are skipped.', 3, 100000)
+    max_beams: int = param(
+        2000, 'Scans with more beams than this are matched on every k-th beam (the '
+        'smallest k that keeps at most this many; said once): bounds the time per scan '
+        '(0 = every beam).', 0, 1000000)
     deskew: str = param(
         'auto', 'Move every point to the instant of the scan stamp with the motion during '
         'the sweep (rotating lidars): auto = when the scan has a time_increment, on = also '

@@ -187,6 +187,7 @@ class OdometryPipeline:
         """
         started = time.perf_counter()
         self.counters['scans_in'] += 1
+        scan = self.validator.thin(scan)
         current, reason = self.validator.check(scan)
         if current is None:
             self.events.warn(reason, f'scan at t={scan.stamp_ns * 1e-9:.3f} skipped: '

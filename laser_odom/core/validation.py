@@ -11,6 +11,7 @@ sweep timing (``time_increment``, ``scan_time``) is judged by
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -45,6 +46,41 @@ class ScanValidator:
         self.events = events if events is not None else EventLog()
         self._valid_increments: dict[int, float] = {}
         """The last valid ``time_increment`` per beam count (the fallback for bad ones)."""
+
+    def thin(self, scan: LaserScan) -> LaserScan:
+        """Return ``scan`` on every k-th beam when it has more than ``max_beams``.
+
+        The matchers' cost grows with the points (the global search refines each
+        candidate on all of them), so a scan of 20,000 beams would hold a live node for
+        tens of seconds. Every k-th beam keeps an ordered scan with a k times wider
+        ``angle_increment`` and ``time_increment`` (the same sweep, the same field of
+        view), which every matcher and the de-skewing read unchanged. Malformed fields
+        are left for :meth:`check` to judge.
+        """
+        limit = self.config.max_beams
+        try:
+            count = len(scan.ranges)
+        except TypeError:
+            return scan
+        if limit <= 0 or count <= limit:
+            return scan
+        step = -(-count // limit)
+        self.events.warn(
+            'scan_thinned', f'scans have {count} beams, more than max_beams ({limit}): '
+            f'one beam in {step} is matched', once=True)
+        increment = scan.time_increment
+        timed = isinstance(increment, (int, float))
+        # The beam the stamp belongs to is kept, so the sweep times stay exact.
+        stamped_last = (self.config.scan_stamp == 'last_beam') != (timed and increment < 0)
+        first = (count - 1) % step if stamped_last else 0
+        intensities = scan.intensities
+        if intensities is not None and len(intensities) == count:
+            intensities = intensities[first::step]
+        return dataclasses.replace(
+            scan, ranges=scan.ranges[first::step], intensities=intensities,
+            angle_min=scan.angle_min + first * scan.angle_increment,
+            angle_increment=scan.angle_increment * step,
+            time_increment=increment * step if timed else increment)
 
     def check(self, scan: LaserScan) -> tuple[ScanPoints | None, str]:
         """Return ``(points, '')`` for a usable scan or ``(None, reason)``."""
