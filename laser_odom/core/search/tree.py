@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from laser_odom.core import se2
@@ -27,6 +28,11 @@ def coarsen(dilation: np.ndarray) -> np.ndarray:
     octave = np.floor(np.log2(np.maximum(dilation, 1))).astype(np.int64)
     step = np.where(dilation >= 8, 1 << np.maximum(octave - 2, 0), 1)
     return -(-dilation // step) * step
+
+
+_OCTANTS = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)],
+                    dtype=np.int64)
+"""The eight children of a node, as offsets in units of half its block."""
 
 
 class SearchTree:
@@ -115,13 +121,12 @@ class SearchTree:
                          axis=-1).astype(np.int64)
         base = grid.flat_index(cells + self.translation_low) + self.shift(level)[None, :]
         offset = nodes[:, 1] * grid.shape[1] + nodes[:, 2]
-        return grid.tables[base[rows.ravel()] + offset[:, None]].sum(axis=1, dtype=np.int64)
+        return _summed_lookups(grid.tables, base, rows.ravel().astype(np.int64),
+                               offset.astype(np.int64))
 
     def children(self, level: int, nodes: np.ndarray) -> np.ndarray:
         """Return the nodes one level down that split these, inside the window."""
-        half = 2 ** (level - 1)
-        steps = np.array([[a, b, c] for a in (0, half) for b in (0, half) for c in (0, half)])
-        kids = (nodes[:, None, :] + steps[None, :, :]).reshape(-1, 3)
+        kids = (nodes[:, None, :] + (_OCTANTS << (level - 1))[None, :, :]).reshape(-1, 3)
         inside = ((kids[:, 0] < self.angles) & (kids[:, 1] < self.translations)
                   & (kids[:, 2] < self.translations))
         return kids[inside]
@@ -137,3 +142,22 @@ class SearchTree:
             best = int(np.argmax(values))
             node, score = kids[best:best + 1], int(values[best])
         return score
+
+
+@numba.njit(cache=True, nogil=True)
+def _summed_lookups(tables: np.ndarray, base: np.ndarray, rows: np.ndarray,
+                    offset: np.ndarray) -> np.ndarray:
+    """Return ``sum_p tables[base[rows[n], p] + offset[n]]`` for every node ``n``.
+
+    The hot loop of the search (a third to a half of a step's time with ``prior:
+    none``): numpy's gather would build a nodes x points index array first.
+    """
+    scores = np.empty(len(rows), dtype=np.int64)
+    for n in range(len(rows)):
+        row = base[rows[n]]
+        shift = offset[n]
+        total = 0
+        for p in range(len(row)):
+            total += tables[row[p] + shift]
+        scores[n] = total
+    return scores
