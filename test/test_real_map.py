@@ -31,44 +31,30 @@ SHORT_OF_TARGET = {
                            '0.55-0.65 % there, a floor the ratio cannot go below',
     ('imls', 'mit-csail'): 'drift 0.66 % (0.63x), the same reference floor',
 }
-"""Where the map mode falls short of issue 28's targets, and why (strict: a fix shows)."""
+"""Where the map mode falls short of issue 28's targets, and why (a fix shows: the test
+then fails until the entry goes)."""
 
-CASES = [pytest.param(matcher, dataset, marks=pytest.mark.xfail(
-    reason=SHORT_OF_TARGET[matcher, dataset], strict=True))
-    if (matcher, dataset) in SHORT_OF_TARGET else (matcher, dataset)
-    for matcher in ('plicp', 'nicp', 'imls') for dataset in ('fr079', 'mit-csail', 'intel')]
-
-
-@pytest.fixture(scope='module')
-def map_rows(real_log):
-    """Return the map-mode rows, run once per matcher and log."""
-    cache = {}
-
-    def get(matcher: str, dataset: str):
-        if (matcher, dataset) not in cache:
-            cache[matcher, dataset] = benchmark_run(real_log(dataset), matcher,
-                                                    'constant_velocity', reference='local_map')
-        return cache[matcher, dataset]
-    return get
+CASES = [(matcher, dataset) for matcher in ('plicp', 'nicp', 'imls')
+         for dataset in ('fr079', 'mit-csail', 'intel')]
 
 
 @pytest.mark.parametrize('matcher, dataset', CASES)
-def test_the_local_map_drifts_less_than_scan_to_scan(map_rows, matcher, dataset):
-    row = map_rows(matcher, dataset)
+def test_the_local_map_drifts_less_than_scan_to_scan(real_log, matcher, dataset):
+    """One run per case (a map run takes 10-40 s) is held to both bars below."""
+    row = benchmark_run(real_log(dataset), matcher, 'constant_velocity',
+                        reference='local_map')
+    documented = figure(load_figures(), dataset, matcher, reference='local_map')
+    assert regression(row.as_dict(), documented) == [], (matcher, dataset)
     scan = figure(load_figures(), dataset, matcher)
     figures = (f'{matcher} on {dataset}: local map drift {row.drift_trans:.2f} % / '
                f'{row.drift_rot:.3f} deg/m, ATE {row.ate:.3f} m, failed {row.failed}; scan '
                f'{scan["drift_trans"]:.2f} % / {scan["drift_rot"]:.3f} deg/m, ATE '
                f'{scan["ate"]:.3f} m, failed {scan["failed"]}')
     assert row.reference == 'local_map' and row.drift_length == 50.0, figures
-    assert row.drift_trans <= DRIFT_RATIO * scan['drift_trans'], figures
-    assert row.ate < BEST_PEER_ATE.get(dataset, ATE_RATIO * scan['ate']), figures
-    assert row.failed <= scan['failed'], figures
-
-
-@pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
-@pytest.mark.parametrize('dataset', ['fr079', 'mit-csail', 'intel'])
-def test_the_local_map_meets_its_documented_figures(map_rows, matcher, dataset):
-    row = map_rows(matcher, dataset)
-    documented = figure(load_figures(), dataset, matcher, reference='local_map')
-    assert regression(row.as_dict(), documented) == [], (matcher, dataset)
+    short = {'drift': row.drift_trans > DRIFT_RATIO * scan['drift_trans'],
+             'ATE': row.ate >= BEST_PEER_ATE.get(dataset, ATE_RATIO * scan['ate']),
+             'failed steps': row.failed > scan['failed']}
+    if (matcher, dataset) in SHORT_OF_TARGET:  # strict: a fix shows
+        assert any(short.values()), f'now meets the targets, update SHORT_OF_TARGET: {figures}'
+    else:
+        assert not any(short.values()), f'short of target ({short}): {figures}'
