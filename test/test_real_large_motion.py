@@ -15,6 +15,7 @@ import pytest
 
 from laser_odom.core.benchmark import benchmark_run, REAL_REFERENCE_NOISE
 from laser_odom.core.matchers import matcher_names
+from laser_odom.tools.figures import figure, load_figures
 
 FAILED_BEFORE = {
     'intel-kf': {'plicp': 17, 'nicp': 11, 'imls': 11},
@@ -49,12 +50,17 @@ def test_large_motion_without_a_prior(real_log, matcher, dataset):
 
 @pytest.mark.parametrize('matcher', matcher_names())
 def test_wheel_odometry_prior_scores_as_well_as_constant_velocity(real_log, matcher):
+    """Compare with the documented constant-velocity row (one run here, not two).
+
+    test_real_data holds today's constant-velocity run to that row within 5 %.
+    """
     odom = benchmark_run(real_log('mit-csail'), matcher, 'odom')
-    velocity = benchmark_run(real_log('mit-csail'), matcher, 'constant_velocity')
+    velocity = figure(load_figures(), 'mit-csail', matcher)
+    assert velocity['prior'] == 'constant_velocity'
     figures = (f'{matcher} on mit-csail: odom prior RPE {odom.rpe_trans_mean:.4f} m / '
                f'{odom.rpe_rot_mean:.3f} deg, ATE {odom.ate:.3f} m; constant velocity '
-               f'{velocity.rpe_trans_mean:.4f} m / {velocity.rpe_rot_mean:.3f} deg, '
-               f'ATE {velocity.ate:.3f} m')
-    assert odom.rpe_trans_mean <= 1.1 * velocity.rpe_trans_mean, figures
-    assert odom.rpe_rot_mean <= 1.1 * velocity.rpe_rot_mean, figures
-    assert odom.ate <= 1.1 * velocity.ate, figures
+               f'(documented) {velocity["rpe_trans_mean"]:.4f} m / '
+               f'{velocity["rpe_rot_mean"]:.3f} deg, ATE {velocity["ate"]:.3f} m')
+    assert odom.rpe_trans_mean <= 1.1 * velocity['rpe_trans_mean'], figures
+    assert odom.rpe_rot_mean <= 1.1 * velocity['rpe_rot_mean'], figures
+    assert odom.ate <= 1.1 * velocity['ate'], figures
