@@ -41,16 +41,21 @@ directions in imls.py, not the surface or the solver, and takes 45 of a pass's 5
 with numba off (without it a module's run takes under an hour, not six)."""
 MODULES = {
     'se2': (f'{CORE}/se2.py', ['test/test_se2.py']),
-    'acceptance': (f'{CORE}/acceptance.py',
+    'acceptance': (f'{CORE}/registration/acceptance.py',
                    ['test/test_acceptance.py', 'test/test_pipeline.py',
                     'test/test_degeneracy.py', 'test/test_global_search.py',
                     'test/test_large_motion.py']),
-    'validation': (f'{CORE}/validation.py', ['test/test_scan.py', 'test/test_pipeline.py']),
-    'motion': (f'{CORE}/motion.py',
+    'rejection': (f'{CORE}/registration/rejection.py',
+                  ['test/test_acceptance.py', 'test/test_pipeline.py',
+                   'test/test_degeneracy.py', 'test/test_global_search.py',
+                   'test/test_large_motion.py']),
+    'validation': (f'{CORE}/preprocess/validation.py', ['test/test_scan.py',
+                                                        'test/test_pipeline.py']),
+    'motion': (f'{CORE}/motion/model.py',
                ['test/test_motion.py', 'test/test_pipeline.py', 'test/test_priors.py']),
-    'pipeline': (f'{CORE}/pipeline.py',
+    'pipeline': (f'{CORE}/pipeline/odometry.py',
                  ['test/test_pipeline.py', 'test/test_deskew_pipeline.py']),
-    'pose_uncertainty': (f'{CORE}/pose_uncertainty.py', [
+    'pose_uncertainty': (f'{CORE}/uncertainty/pose_uncertainty.py', [
         f'test/test_pose_covariance.py::test_{name}' for name in (
             'white_errors_compound_as_smith_self_and_cheeseman',
             'shared_scan_noise_telescopes', 'a_persistent_bias_adds_up_linearly',
@@ -58,17 +63,17 @@ MODULES = {
             'what_is_not_the_scans_own_noise_falls_off_with_the_baseline',
             'a_state_whose_scan_is_not_known_starts_its_noise_and_bias_from_their_prior')]),
     'robust': (f'{M}/robust.py', ['test/test_robust.py']),
-    'icp_solver': (f'{M}/icp_solver.py', ['test/test_icp.py']),
-    'plicp_solver': (f'{M}/plicp_solver.py', ['test/test_plicp.py']),
-    'plicp_segments': (f'{M}/plicp_segments.py', ['test/test_plicp.py']),
-    'nicp_model': (f'{M}/nicp_model.py', ['test/test_nicp.py']),
-    'nicp_solver': (f'{M}/nicp_solver.py', ['test/test_nicp.py']),
-    'imls_surface': (f'{M}/imls_surface.py', IMLS_TESTS),
-    'imls_solver': (f'{M}/imls_solver.py', IMLS_TESTS),
+    'icp_solver': (f'{M}/icp/solver.py', ['test/test_icp.py']),
+    'plicp_solver': (f'{M}/plicp/solver.py', ['test/test_plicp.py']),
+    'plicp_segments': (f'{M}/plicp/segments.py', ['test/test_plicp.py']),
+    'nicp_model': (f'{M}/nicp/model.py', ['test/test_nicp.py']),
+    'nicp_solver': (f'{M}/nicp/solver.py', ['test/test_nicp.py']),
+    'imls_surface': (f'{M}/imls/surface.py', IMLS_TESTS),
+    'imls_solver': (f'{M}/imls/solver.py', IMLS_TESTS),
 }
 """Module name -> (source file, the self-contained tests that guard it)."""
 
-PURE_PYTHON = {'acceptance', 'validation', 'motion', 'pipeline'}
+PURE_PYTHON = {'acceptance', 'rejection', 'validation', 'motion', 'pipeline'}
 """Modules without compiled kernels: their tests run with numba on. (pose_uncertainty has a
 kernel of its own, which numba would compile again for every mutant, 15 s each; its model
 tests call nothing else compiled.)"""

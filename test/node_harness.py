@@ -30,9 +30,8 @@ from rclpy.task import Future
 from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
-from laser_odom.core.simulation import geometry as geo
-from laser_odom.core.simulation import World
+from laser_odom.core.scan.laser_scan import LaserScan
+from laser_odom.core.simulation import geometry as geo, World
 from laser_odom.ros.conversions import ns_to_stamp, planar_pose_msg, scan_to_msg, stamp_to_ns
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.configuration.pipeline import PipelineConfig
 
 
 def good_match(pose=(0.0, 0.0, 0.0), **fields):
@@ -24,8 +24,8 @@ def test_acceptance_gates_the_correction_inclusively_in_the_predictions_frame():
 
     Non-finite poses or covariances are rejected before the correction is judged.
     """
-    from laser_odom.core.acceptance import correction_from, rejection_reason
-    from laser_odom.core.config import AcceptanceConfig
+    from laser_odom.core.registration.rejection import correction_from, rejection_reason
+    from laser_odom.core.configuration.pipeline import AcceptanceConfig
     config = AcceptanceConfig(max_correction_linear=0.5, max_correction_angular=0.25)
     zero = se2.pose()
     for pose, reason in (((0.5, 0.0, 0.0), None), ((0.0, -0.5, 0.25), None),
@@ -56,8 +56,9 @@ def test_a_searched_match_is_gated_by_the_window_and_its_surface_overlap():
 
     The inlier ratio judged is the surface overlap the search measured, if there is one.
     """
-    from laser_odom.core.acceptance import searched_inlier_ratio, searched_rejection_reason
-    from laser_odom.core.config import AcceptanceConfig
+    from laser_odom.core.registration.rejection import (
+        searched_inlier_ratio, searched_rejection_reason)
+    from laser_odom.core.configuration.pipeline import AcceptanceConfig
     from laser_odom.core.search import SearchWindow
     config = AcceptanceConfig(min_inlier_ratio=0.3)
     window = SearchWindow(linear=1.0, angular=0.5, resolution=0.25)
@@ -85,7 +86,7 @@ def test_a_searched_match_is_gated_by_the_window_and_its_surface_overlap():
 
 def test_each_rejection_is_described_with_its_numbers():
     """The log line of each reason carries the figures behind it."""
-    from laser_odom.core.acceptance import describe_rejection
+    from laser_odom.core.registration.rejection import describe_rejection
     config = PipelineConfig()
     config.acceptance.min_inlier_ratio = 0.3
     config.acceptance.max_correction_linear = 0.5
@@ -115,8 +116,8 @@ def test_each_rejection_is_described_with_its_numbers():
 
 def test_judge_match_rejects_to_the_prediction_or_holds():
     """A rejected match is replaced by the guess (or no motion); its covariance is the window."""
-    from laser_odom.core.acceptance import judge_match
-    from laser_odom.core.registration import Registration
+    from laser_odom.core.registration.acceptance import judge_match
+    from laser_odom.core.registration.registrar import Registration
     config = PipelineConfig()
     guess = se2.pose(0.1, 0.02, 0.01)
     # ''.join: the name as a parameter file gives it (equal, not the same object).
@@ -146,8 +147,8 @@ def test_judge_match_keeps_the_prediction_along_a_degenerate_direction():
 
     The anchor is the guess when the prediction is trusted, else the match itself.
     """
-    from laser_odom.core.acceptance import DEGENERATE_VARIANCE, judge_match
-    from laser_odom.core.registration import Registration
+    from laser_odom.core.registration.acceptance import DEGENERATE_VARIANCE, judge_match
+    from laser_odom.core.registration.registrar import Registration
     config = PipelineConfig()
     config.acceptance.degeneracy_min_information = 400.0
     config.acceptance.max_correction_angular = 1.0
@@ -177,8 +178,8 @@ def test_judge_match_keeps_the_prediction_along_a_degenerate_direction():
 
 def test_an_ambiguous_match_covers_its_alternatives():
     """Each alternative's offset (angle wrapped) is added as d d^T: reported degenerate."""
-    from laser_odom.core.acceptance import covering_covariance, judge_match
-    from laser_odom.core.registration import Registration
+    from laser_odom.core.registration.acceptance import covering_covariance, judge_match
+    from laser_odom.core.registration.registrar import Registration
     config = PipelineConfig()
     pose = se2.pose(1.0, 2.0, 3.0)
     covariance = np.diag([1e-4, 2e-4, 3e-5])
@@ -201,8 +202,8 @@ def test_an_ambiguous_match_covers_its_alternatives():
 
 
 def test_acceptance_rejects_unconverged_and_poorly_paired_matches():
-    from laser_odom.core.acceptance import rejection_reason
-    from laser_odom.core.config import AcceptanceConfig
+    from laser_odom.core.registration.rejection import rejection_reason
+    from laser_odom.core.configuration.pipeline import AcceptanceConfig
     from laser_odom.core.matchers import MatchResult
     guess = se2.pose(0.1, 0.0, 0.0)
     good = MatchResult(pose=guess.copy(), converged=True, iterations=5, inlier_ratio=0.9,
@@ -222,8 +223,8 @@ def test_a_direction_without_information_keeps_a_finite_variance():
 
     A zero eigenvalue is then not weak; a slightly negative one is (DEGENERATE_VARIANCE).
     """
-    from laser_odom.core.acceptance import judge_match
-    from laser_odom.core.registration import Registration
+    from laser_odom.core.registration.acceptance import judge_match
+    from laser_odom.core.registration.registrar import Registration
     config = PipelineConfig()
     config.acceptance.degeneracy_min_information = 0.0
     match = good_match(se2.pose(0.01, 0.0, 0.0), information=np.diag([-1e-9, 0.0, 1e4]))

@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.acceptance import judge_match, rejected_covariance
-from laser_odom.core.benchmark import benchmark_run
-from laser_odom.core.blind_prior import Prediction
-from laser_odom.core.config import GlobalSearchConfig, PipelineConfig
+from laser_odom.core.configuration.node import NodeConfig
+from laser_odom.core.configuration.pipeline import GlobalSearchConfig, PipelineConfig
+from laser_odom.core.evaluation.benchmark import benchmark_run
 from laser_odom.core.matchers import MatchResult
-from laser_odom.core.pipeline import EVENTS
-from laser_odom.core.registration import EVIDENCE_EVENTS, Registration
+from laser_odom.core.motion.blind_prior import Prediction
+from laser_odom.core.pipeline.odometry import EVENTS
+from laser_odom.core.registration.acceptance import judge_match, rejected_covariance
+from laser_odom.core.registration.registrar import EVIDENCE_EVENTS, Registration
 from laser_odom.core.search import SearchWindow
-from laser_odom.core.settings import NodeConfig
 from laser_odom.core.simulation import drop_to_steps, simulate
 
 

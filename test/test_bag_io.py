@@ -9,7 +9,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import get_typestore, Stores
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.simulation import LaserModel, simulate
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_writer import write_bag

@@ -10,7 +10,7 @@ from rosbags.rosbag1 import Writer as Writer1
 from rosbags.typesys import get_typestore, Stores
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_reader import (
     BagFormatError, BagNotFoundError, BagReader, BagTruncatedError, TopicError)

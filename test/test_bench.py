@@ -303,7 +303,7 @@ def test_bad_bag_is_one_line_and_exit_2(user_bag, tmp_path, capsys):
 
 
 def test_nees_columns_are_finite_and_old_results_still_load(monkeypatch, tmp_path, capsys):
-    from laser_odom.core.benchmark import BenchRow
+    from laser_odom.core.evaluation.benchmark import BenchRow
     from laser_odom.tools.figures import FIGURES_JSON
     dataset = simulate('office', duration=15.0, seed=3)  # 150 scans: a 100-step window
     dataset.name = 'tiny'

@@ -12,12 +12,12 @@ import math
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.acceptance import DEGENERATE_VARIANCE, judge_match
-from laser_odom.core.blind_prior import (
-    MIN_HISTORY, Prediction, PREDICTION_FLOOR, StepHistory, UNPREDICTED_HEADING)
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.matchers import MatchResult
-from laser_odom.core.registration import Registration
+from laser_odom.core.motion.blind_prior import (
+    MIN_HISTORY, Prediction, PREDICTION_FLOOR, StepHistory, UNPREDICTED_HEADING)
+from laser_odom.core.registration.acceptance import DEGENERATE_VARIANCE, judge_match
+from laser_odom.core.registration.registrar import Registration
 
 SECOND = 1_000_000_000
 

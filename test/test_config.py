@@ -2,9 +2,9 @@
 
 import pytest
 
-from laser_odom.core.config import pipeline_config_from_params, PipelineConfig
+from laser_odom.core.configuration.pipeline import pipeline_config_from_params, PipelineConfig
 from laser_odom.core.matchers import create_matcher, matcher_names, UnknownMatcherError
-from laser_odom.core.params import param_fields, ParameterError
+from laser_odom.core.parameters import param_fields, ParameterError
 
 
 def test_every_parameter_has_description_and_default_in_range():

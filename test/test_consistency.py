@@ -1,4 +1,4 @@
-"""The NEES of :mod:`laser_odom.core.consistency` on synthetic runs of known error.
+"""The NEES of :mod:`laser_odom.core.evaluation.consistency` on synthetic runs of known error.
 
 Trajectories whose step errors are drawn from the very model the covariance states
 (white, shared-scan and bias shares) must score about 3; the same runs with the
@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.consistency import (
+from laser_odom.core.evaluation.consistency import (
     integrated_nees, nees, reference_at, ReferenceNoise, run_consistency, window_nees,
     window_nees_values)
-from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
 from laser_odom.core.trajectory import Trajectory
+from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepErrorModel
 
 S = np.diag([4e-4, 1e-4, 3e-6])
 """Step covariance: 2 cm along, 1 cm across, 0.1 deg."""

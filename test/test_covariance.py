@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.matchers.information import (
     MIN_RESIDUAL_SIGMA, point_to_line_information, point_to_line_jacobians)
-from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.simulation import LaserModel, simulate
 
 DOF = 3

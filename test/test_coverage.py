@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from laser_odom.core.coverage import max_hole, reference_coverage
+from laser_odom.core.evaluation.coverage import max_hole, reference_coverage
 from laser_odom.core.trajectory import Trajectory
 
 PERIOD = 100_000_000

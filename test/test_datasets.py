@@ -12,7 +12,7 @@ from laser_odom.core.datasets import (
     DatasetError, discover_datasets, load_carmen, load_dataset, load_mat)
 from laser_odom.core.datasets.common import (
     longest_increasing, MIN_STAMP_STEP_NS, no_return_threshold, repair_scan_stamps)
-from laser_odom.core.scan import beam_angles, scan_to_points
+from laser_odom.core.scan.laser_scan import beam_angles, scan_to_points
 
 DEG = math.pi / 180.0
 

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.metrics import evaluate
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.runner import run_pipeline
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
 from laser_odom.core.simulation import simulate
 
 

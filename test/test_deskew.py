@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
-from laser_odom.core.deskew import (
-    beam_times, DESKEW_EVENTS, move_points, sweep_times, twist_of_step)
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
-from laser_odom.core.metrics import evaluate
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.scan import LaserScan, scan_to_points
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.preprocess.deskew import (
+    beam_times, DESKEW_EVENTS, move_points, sweep_times, twist_of_step)
+from laser_odom.core.scan.laser_scan import LaserScan, scan_to_points
 from laser_odom.core.simulation import get_world, simulate
 from laser_odom.core.simulation.laser import render_swept_scan
 from laser_odom.core.simulation.motions import ConstantTwist

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
-from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.simulation import simulate
 
 

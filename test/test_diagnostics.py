@@ -9,7 +9,7 @@ from collections import Counter
 from diagnostic_msgs.msg import DiagnosticStatus
 import numpy as np
 
-from laser_odom.core.settings import NodeConfig
+from laser_odom.core.configuration.node import NodeConfig
 from laser_odom.ros.diagnostics import (
     BUSY, BUSY_KEY, DiagnosticsReporter, DROPPED, DROPPED_KEY, ScanGapCounter, Snapshot)
 

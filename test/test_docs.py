@@ -123,7 +123,7 @@ def test_readme_is_a_guide_under_300_lines_in_the_order_a_newcomer_needs():
 
 def test_every_command_the_readme_and_the_docs_show_exists():
     """Tools, their options and commands, make targets, launch arguments, parameters."""
-    from laser_odom.core.settings import parameter_specs
+    from laser_odom.core.configuration.node import parameter_specs
     tools = _entry_points()
     targets = set(re.findall(r'^([\w-]+):', (ROOT / 'Makefile').read_text(), re.M))
     parameters = {spec.name for spec in parameter_specs()}

@@ -1,6 +1,6 @@
 """The covariance a match's own evidence supports: the search's score surface (Olson 2009).
 
-Unit figures of :mod:`laser_odom.core.evidence` against hand computations, then the
+Unit figures of :mod:`laser_odom.core.uncertainty.evidence` against hand computations, then the
 pipeline on simulated pairs of scans with ``prior: none``: a well-constrained match
 keeps the matcher's covariance, a corridor's match grows along the axis (by the
 spread of poses that score alike there) and not across it.
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
-from laser_odom.core.evidence import (
-    excess, FLOOR_CELLS, likelihood_weights, spread_about, surface_covariance)
-from laser_odom.core.pipeline import OdometryPipeline
+from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.simulation import get_world, LaserModel, render_scan
+from laser_odom.core.uncertainty.evidence import (
+    excess, FLOOR_CELLS, likelihood_weights, spread_about, surface_covariance)
 
 
 def test_scores_read_as_relative_likelihoods():

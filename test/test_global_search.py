@@ -6,13 +6,12 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.scan import scan_to_points, ScanPoints
+from laser_odom.core.scan.laser_scan import scan_to_points, ScanPoints
 from laser_odom.core.search import correlative_search, SearchWindow
 from laser_odom.core.search.correlative import search_tree
 from laser_odom.core.search.grid import LIKELIHOOD_STEPS, LikelihoodGrid
 from laser_odom.core.search.tree import coarsen
-from laser_odom.core.simulation import geometry as geo
-from laser_odom.core.simulation import get_world, LaserModel, render_scan
+from laser_odom.core.simulation import geometry as geo, get_world, LaserModel, render_scan
 from laser_odom.core.simulation.world import World
 
 LARGE_MOTION = se2.pose(0.8, 0.0, math.radians(25.0))

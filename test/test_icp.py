@@ -7,16 +7,16 @@ import pytest
 from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import create_matcher
-from laser_odom.core.matchers.icp_solver import accelerated_extra, align_pairs, iterate
+from laser_odom.core.matchers.icp.solver import accelerated_extra, align_pairs, iterate
 from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
-from laser_odom.core.metrics import evaluate
-from laser_odom.core.nearest import BearingIndex
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.scan import densify, scan_to_points, ScanPoints
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.scan.laser_scan import densify, scan_to_points, ScanPoints
+from laser_odom.core.scan.nearest import BearingIndex
 from laser_odom.core.simulation import get_world, LaserModel, render_scan, simulate
 
 MOTION = se2.pose(0.3, 0.0, math.radians(10.0))

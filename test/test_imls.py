@@ -9,26 +9,25 @@ import pytest
 import yaml
 
 from laser_odom.core import se2
-from laser_odom.core.config import pipeline_config_from_params, PipelineConfig
+from laser_odom.core.configuration.pipeline import pipeline_config_from_params, PipelineConfig
 from laser_odom.core.datasets import load_dataset
+from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
 from laser_odom.core.matchers.base import MatchResult
-from laser_odom.core.matchers.imls import (
+from laser_odom.core.matchers.imls.matcher import (
     ALIGNED_COSINE, COARSE_FRACTION, COARSE_SHARE, ImlsConfig, ImlsMatcher, MAX_GAIN)
-from laser_odom.core.matchers.imls_solver import (
+from laser_odom.core.matchers.imls.solver import (
     advance, fuse_directions, gauss_newton_step, inverted_information, point_to_plane_system,
     step_cosine, surface_information)
-from laser_odom.core.matchers.imls_surface import (
+from laser_odom.core.matchers.imls.surface import (
     candidate_ranking, implicit_surface, model_from_arrays, observability_scores, planarity,
     project_onto_surface, select_on_surface, surface_model, SurfaceSample)
 from laser_odom.core.matchers.robust import inlier_mask, kernel_code, kernel_weights
-from laser_odom.core.metrics import evaluate
-from laser_odom.core.params import as_dict, ParameterError
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.scan import scan_to_points, ScanPoints
-from laser_odom.core.simulation import geometry as geo
-from laser_odom.core.simulation import get_world, LaserModel, render_scan, World
+from laser_odom.core.parameters import as_dict, ParameterError
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.scan.laser_scan import scan_to_points, ScanPoints
+from laser_odom.core.simulation import geometry as geo, get_world, LaserModel, render_scan, World
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / 'config' / 'imls.yaml'
 H = 0.1

@@ -7,16 +7,17 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.benchmark import benchmark_run, SIMULATED
-from laser_odom.core.config import PipelineConfig
+from laser_odom.core.configuration.node import PriorConfig
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.evaluation.benchmark import benchmark_run, SIMULATED
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.priors import PriorConfig, PriorFeed
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.scan import LaserScan
-from laser_odom.core.simulation import geometry as geo
-from laser_odom.core.simulation import get_world, LaserModel, render_scan, simulate
+from laser_odom.core.motion.priors import PriorFeed
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.scan.laser_scan import LaserScan
+from laser_odom.core.simulation import (
+    geometry as geo, get_world, LaserModel, render_scan, simulate)
 from laser_odom.core.simulation.world import World
 from laser_odom.core.trajectory import Trajectory
 

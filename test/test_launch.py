@@ -24,7 +24,7 @@ from rclpy.time_source import USE_SIM_TIME_NAME
 import setuptools
 import yaml
 
-from laser_odom.core.settings import NodeConfig, parameter_specs
+from laser_odom.core.configuration.node import NodeConfig, parameter_specs
 from laser_odom.ros.node import LaserOdomNode
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import LocalMapConfig
-from laser_odom.core.local_map import LocalMap, MapGeometry
-from laser_odom.core.local_map_cells import ALIVE, EMPTY, KEY
-from laser_odom.core.map_reference import MapReference, MAX_REFUSED
-from laser_odom.core.scan import LaserMounting, ScanPoints
+from laser_odom.core.configuration.pipeline import LocalMapConfig
+from laser_odom.core.registration.local_map.cells import ALIVE, EMPTY, KEY
+from laser_odom.core.registration.local_map.map import LocalMap, MapGeometry
+from laser_odom.core.registration.local_map.reference import MapReference, MAX_REFUSED
+from laser_odom.core.scan.laser_scan import LaserMounting, ScanPoints
 from laser_odom.core.simulation.geometry import rectangle, stack, wall
 from laser_odom.core.simulation.raycast import cast_rays
 

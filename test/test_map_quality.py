@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.map_quality import (
+from laser_odom.core.evaluation.map_quality import (
     map_entropy, odometry_disagreement, reference_free_score)
-from laser_odom.core.scan import scan_to_points
+from laser_odom.core.scan.laser_scan import scan_to_points
 from laser_odom.core.simulation import simulate
 from laser_odom.core.trajectory import Trajectory
 

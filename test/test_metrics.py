@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.metrics import (
+from laser_odom.core.evaluation.metrics import (
     align_se2, associate, distance_travelled, drift_segment_length, evaluate, relative_errors,
     segment_drift)
 from laser_odom.core.trajectory import Trajectory

@@ -9,8 +9,8 @@ from laser_odom.core import se2
 
 
 def motion_model(prior: str = 'constant_velocity', max_scan_gap: float = 1.0):
-    from laser_odom.core.config import MotionConfig
-    from laser_odom.core.motion import MotionModel
+    from laser_odom.core.configuration.pipeline import MotionConfig
+    from laser_odom.core.motion.model import MotionModel
     return MotionModel(MotionConfig(prior=prior, max_scan_gap=max_scan_gap))
 
 
@@ -79,7 +79,7 @@ def test_motion_model_velocity_is_the_step_over_its_interval():
 
     An interval of exactly MIN_VELOCITY_DT or max_scan_gap still gives a velocity.
     """
-    from laser_odom.core.motion import MIN_VELOCITY_DT
+    from laser_odom.core.motion.model import MIN_VELOCITY_DT
     model = motion_model(max_scan_gap=0.5)
     np.testing.assert_array_equal(model.velocity, [0.0, 0.0, 0.0])
     step = se2.pose(0.02, 0.01, 0.004)
@@ -107,7 +107,7 @@ def test_motion_model_scan_period_from_the_last_positive_intervals():
 
     Non-positive intervals are not recorded; the period covers the last PERIOD_WINDOW.
     """
-    from laser_odom.core.motion import PERIOD_WINDOW
+    from laser_odom.core.motion.model import PERIOD_WINDOW
     model = motion_model()
     for _ in range(4):
         model.update(se2.pose(), 0.1)
@@ -129,7 +129,7 @@ def test_motion_model_scan_period_from_the_last_positive_intervals():
 
 def test_motion_model_bursty_stamps_are_those_with_over_a_tenth_of_short_intervals():
     """Over JITTER_FRACTION of intervals below half the median: the mean interval is used."""
-    from laser_odom.core.motion import JITTER_FRACTION
+    from laser_odom.core.motion.model import JITTER_FRACTION
     assert JITTER_FRACTION == 0.1
     cases = (([0.2] * 20 + [0.01] * 5, (20 * 0.2 + 5 * 0.01) / 25),  # 20 % short: bursty
              ([0.2] * 18 + [0.01] * 2, 0.2),  # exactly 10 % short: regular

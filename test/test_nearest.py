@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from laser_odom.core.nearest import BearingIndex
+from laser_odom.core.scan.nearest import BearingIndex
 
 
 def kd_nearest(points: np.ndarray, queries: np.ndarray, gate: float):

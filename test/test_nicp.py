@@ -8,26 +8,25 @@ import pytest
 import yaml
 
 from laser_odom.core import se2
-from laser_odom.core.config import pipeline_config_from_params, PipelineConfig
+from laser_odom.core.configuration.pipeline import pipeline_config_from_params, PipelineConfig
 from laser_odom.core.datasets import load_dataset
+from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import create_matcher, default_config, matcher_names
-from laser_odom.core.matchers.nicp import NicpConfig, NicpMatcher
-from laser_odom.core.matchers.nicp_model import (
+from laser_odom.core.matchers.nicp.matcher import NicpConfig, NicpMatcher
+from laser_odom.core.matchers.nicp.model import (
     associate, chi_squared, dense_information, linearise, normal_equations, pair_rules,
     residuals_and_jacobians, rule_table)
-from laser_odom.core.matchers.nicp_solver import damped_step, undoes
-from laser_odom.core.matchers.nicp_surface import (
+from laser_odom.core.matchers.nicp.solver import damped_step, undoes
+from laser_odom.core.matchers.nicp.surface import (
     nicp_surface, normal_variance, point_information, rotation_seed)
 from laser_odom.core.matchers.robust import kernel_code, kernel_weights
-from laser_odom.core.metrics import evaluate
-from laser_odom.core.normals import estimate_normals, normals_from_neighbours
-from laser_odom.core.params import as_dict, ParameterError
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.scan import scan_to_points, ScanPoints
-from laser_odom.core.simulation import geometry as geo
-from laser_odom.core.simulation import get_world, LaserModel, render_scan, World
+from laser_odom.core.parameters import as_dict, ParameterError
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.scan.laser_scan import scan_to_points, ScanPoints
+from laser_odom.core.scan.normals import estimate_normals, normals_from_neighbours
+from laser_odom.core.simulation import geometry as geo, get_world, LaserModel, render_scan, World
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / 'config' / 'nicp.yaml'
 

@@ -25,7 +25,7 @@ import yaml
 
 from laser_odom.core import se2
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.scan import LaserMounting
+from laser_odom.core.scan.laser_scan import LaserMounting
 from laser_odom.core.simulation import EPOCH_NS, LaserModel, OdometryNoise, simulate
 from laser_odom.ros import extrinsic
 from laser_odom.ros.conversions import (

@@ -17,7 +17,7 @@ import pytest
 from rclpy.parameter import Parameter
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserMounting
+from laser_odom.core.scan.laser_scan import LaserMounting
 from laser_odom.core.simulation import LaserModel, simulate
 from laser_odom.ros import extrinsic
 from laser_odom.ros.conversions import scan_to_msg, stamp_to_ns

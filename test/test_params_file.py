@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from laser_odom.core.params import ParameterError
-from laser_odom.core.settings import check_values
+from laser_odom.core.configuration.node import check_values
+from laser_odom.core.parameters import ParameterError
 from laser_odom.io.params_file import (
     node_name_matches, ParamsFileError, parse_params_file, read_params_files)
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
-from laser_odom.core.metrics import evaluate
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.evaluation.metrics import evaluate
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.simulation import simulate
 
 
@@ -120,8 +120,8 @@ def test_rejected_match_advances_by_the_prediction(office_run):
 
 
 def test_jittery_logger_stamps_use_the_mean_scan_interval():
-    from laser_odom.core.config import MotionConfig
-    from laser_odom.core.motion import MotionModel
+    from laser_odom.core.configuration.pipeline import MotionConfig
+    from laser_odom.core.motion.model import MotionModel
     model = MotionModel(MotionConfig())
     bursty = [0.01, 0.39] * 10  # a 5 Hz sensor logged in pairs
     for dt in bursty:
@@ -228,7 +228,7 @@ def test_pose_covariance_compounds_the_matchers_error_model(office_run):
     The pose covariance is the propagation of each step's covariance from the previous
     pose, with StepErrorModel.of(matcher config) for a matched step.
     """
-    from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
+    from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepErrorModel
     pipeline = OdometryPipeline(PipelineConfig(matcher='plicp'))
     model = StepErrorModel.of(pipeline.matcher.config)
     assert model.shared_scan > 0.0 and model.bias_share > 0.0
@@ -346,7 +346,7 @@ def test_a_rejection_with_no_prior_says_it_holds_the_pose(office_run):
 
 def test_a_rejected_step_compounds_white_whatever_the_matchers_shares(office_run):
     """A rejected step's covariance is ignorance: propagated with the white model."""
-    from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
+    from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepErrorModel
     config = PipelineConfig(matcher='plicp')
     config.search.global_search = 'off'
     pipeline = OdometryPipeline(config)
@@ -499,7 +499,7 @@ def test_switching_the_matcher_type_forgets_how_matches_usually_fit(office_run):
 
 def test_a_degenerate_step_compounds_white_whatever_the_matchers_shares(office_run):
     """A degenerate match's covariance is ignorance: propagated with the white model."""
-    from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
+    from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepErrorModel
     config = PipelineConfig(matcher='plicp')
     config.acceptance.degeneracy_min_information = 1e12  # every direction weak
     pipeline = OdometryPipeline(config)

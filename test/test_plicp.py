@@ -9,17 +9,17 @@ from scipy.optimize import minimize
 import yaml
 
 from laser_odom.core import se2
-from laser_odom.core.config import pipeline_config_from_params
+from laser_odom.core.configuration.pipeline import pipeline_config_from_params
 from laser_odom.core.matchers import create_matcher
-from laser_odom.core.matchers.plicp import PlicpConfig, rotation_candidates
-from laser_odom.core.matchers.plicp_segments import (
+from laser_odom.core.matchers.plicp.matcher import PlicpConfig, rotation_candidates
+from laser_odom.core.matchers.plicp.segments import (
     pair_and_trim, pair_with_segments, reference_segments)
-from laser_odom.core.matchers.plicp_solver import (
+from laser_odom.core.matchers.plicp.solver import (
     iterate, solve_normal_equations, solve_point_to_line)
-from laser_odom.core.params import as_dict
-from laser_odom.core.scan import scan_to_points, ScanPoints
-from laser_odom.core.simulation import geometry
-from laser_odom.core.simulation import get_world, LaserModel, render_scan, simulate, World
+from laser_odom.core.parameters import as_dict
+from laser_odom.core.scan.laser_scan import scan_to_points, ScanPoints
+from laser_odom.core.simulation import (
+    geometry, get_world, LaserModel, render_scan, simulate, World)
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config' / 'plicp.yaml'
 MOTION = se2.pose(0.3, 0.0, math.radians(10.0))

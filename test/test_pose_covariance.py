@@ -13,16 +13,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from laser_odom.core import consistency, se2
-from laser_odom.core.benchmark import simulated_scanner
-from laser_odom.core.config import KeyframeConfig, PipelineConfig
-from laser_odom.core.consistency import Consistency, reference_at, run_consistency
+from laser_odom.core import se2
+from laser_odom.core.configuration.pipeline import KeyframeConfig, PipelineConfig
+from laser_odom.core.evaluation import consistency
+from laser_odom.core.evaluation.benchmark import simulated_scanner
+from laser_odom.core.evaluation.consistency import Consistency, reference_at, run_consistency
 from laser_odom.core.events import EventLog
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.pose_uncertainty import PoseUncertainty, StepErrorModel
-from laser_odom.core.runner import run_pipeline, RunResult
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline, RunResult
 from laser_odom.core.simulation import LaserModel, simulate
 from laser_odom.core.trajectory import Trajectory
+from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepErrorModel
 
 LOW, HIGH = 1.5, 6.0
 WINDOWS = (1, 10, 100)

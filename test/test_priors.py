@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.params import ParameterError
-from laser_odom.core.priors import (
-    external_prior, ImuBuffer, OdometryBuffer, prior_config_from_params, PriorConfig)
+from laser_odom.core.configuration.node import prior_config_from_params, PriorConfig
+from laser_odom.core.motion.priors import external_prior, ImuBuffer, OdometryBuffer
+from laser_odom.core.parameters import ParameterError
 
 SECOND = 1_000_000_000
 

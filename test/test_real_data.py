@@ -19,7 +19,7 @@ accounted) is at most ``MAX_WHOLE_LOG_NEES``.
 
 import pytest
 
-from laser_odom.core.benchmark import benchmark_run, REAL_REFERENCE_NOISE
+from laser_odom.core.evaluation.benchmark import benchmark_run, REAL_REFERENCE_NOISE
 from laser_odom.tools.figures import figure, load_figures, MATCHERS, regression
 
 CSM_BAR = {

@@ -6,14 +6,14 @@ odometry must hold on scans 0.5-2 m and 10-170 deg apart: the Intel keyframe log
 20th scan. No log fails more steps than before the search window adapted (the
 counts of c7b0fbe), and at most one failed step per log is silent: the published step
 covariance covers every other (NEES within the 99.9 % bound, the reference's noise
-accounted, :mod:`laser_odom.core.consistency`). With its own raw wheel odometry as the
+accounted, :mod:`laser_odom.core.evaluation.consistency`). With its own raw wheel odometry as the
 prior, MIT CSAIL (whose odometry jumps and stalls) must score as well as with the
 constant-velocity prior. Skipped when ../shared/data is absent.
 """
 
 import pytest
 
-from laser_odom.core.benchmark import benchmark_run, REAL_REFERENCE_NOISE
+from laser_odom.core.evaluation.benchmark import benchmark_run, REAL_REFERENCE_NOISE
 from laser_odom.core.matchers import matcher_names
 from laser_odom.tools.figures import figure, load_figures
 

@@ -11,7 +11,7 @@ mode is also held to its own documented figures. Skipped when ../shared/data is 
 
 import pytest
 
-from laser_odom.core.benchmark import benchmark_run
+from laser_odom.core.evaluation.benchmark import benchmark_run
 from laser_odom.tools.figures import figure, load_figures, regression
 
 BEST_PEER_ATE = {'fr079': 2.08, 'mit-csail': 0.88}

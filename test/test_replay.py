@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from laser_odom.core.metrics import distance_travelled, evaluate
+from laser_odom.core.evaluation.metrics import distance_travelled, evaluate
 from laser_odom.io.bag_reader import BagReader
 from laser_odom.io.tum import read_tum
 from laser_odom.tools import replay, simulate
@@ -141,7 +141,7 @@ def test_ccny_demo_bag_replays_all_scans(shared_data_dir, tmp_path, capsys):
 
 def test_prior_feed_interpolates_odometry_and_imu_between_scans():
     from laser_odom.core import se2
-    from laser_odom.core.priors import PriorConfig
+    from laser_odom.core.configuration.node import PriorConfig
     from laser_odom.core.trajectory import Trajectory
     from laser_odom.core.trajectory import ImuSamples
     # Wheel odometry at 50 Hz of a robot turning on a circle; scans at 10 Hz in between.

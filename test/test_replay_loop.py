@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from laser_odom.core.metrics import evaluate
+from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.simulation import simulate
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_writer import write_bag

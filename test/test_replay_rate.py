@@ -122,7 +122,7 @@ def test_recorded_clock_and_play_keep_the_recorded_timing():
 
 
 def test_node_figures_are_read_by_the_keys_the_node_publishes():
-    from laser_odom.core.settings import NodeConfig
+    from laser_odom.core.configuration.node import NodeConfig
     from laser_odom.ros.diagnostics import DiagnosticsReporter, Snapshot
     from laser_odom.tools.replay_live import node_figures
 
@@ -145,8 +145,9 @@ def test_node_figures_are_read_by_the_keys_the_node_publishes():
 def test_rate_timeline_interleaves_prior_samples_in_stamp_order():
     from types import SimpleNamespace
 
-    from laser_odom.core.priors import PriorConfig, PriorFeed
-    from laser_odom.core.scan import LaserScan
+    from laser_odom.core.configuration.node import PriorConfig
+    from laser_odom.core.motion.priors import PriorFeed
+    from laser_odom.core.scan.laser_scan import LaserScan
     from laser_odom.tools.replay_live import _timeline
     from laser_odom.tools.replay_report import ReplayRecord
 

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.config import PipelineConfig
-from laser_odom.core.deskew import DESKEW_EVENTS
+from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.preprocess.deskew import DESKEW_EVENTS
+from laser_odom.core.preprocess.validation import REJECTIONS
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.simulation import get_world, LaserModel, render_scan
-from laser_odom.core.validation import REJECTIONS
 
 MALFORMATIONS = (
     'empty', 'nan_angle', 'inf_angle', 'zero_increment', 'span_over_2pi',

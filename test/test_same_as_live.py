@@ -28,7 +28,7 @@ from sensor_msgs.msg import PointCloud2
 import yaml
 
 from laser_odom.core import se2
-from laser_odom.core.scan import scan_to_points
+from laser_odom.core.scan.laser_scan import scan_to_points
 from laser_odom.core.simulation import simulate
 from laser_odom.core.simulation.sensors import sensor_model
 from laser_odom.io.bag_writer import canonical_cdr, write_bag

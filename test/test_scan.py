@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserMounting, LaserScan, scan_to_points
+from laser_odom.core.scan.laser_scan import LaserMounting, LaserScan, scan_to_points
 
 
 def make_scan(ranges, angle_min=-math.pi / 2, increment=math.pi / 2, range_min=0.1,
@@ -66,9 +66,9 @@ def test_tree_is_built_once():
 def validator(min_valid_points=3, deskew='auto', scan_stamp='first_beam', mounting=None,
               max_beams=2000):
     """Return a ScanValidator whose events are kept (said) in a list, on a frozen clock."""
-    from laser_odom.core.config import MountingConfig, ScanConfig
+    from laser_odom.core.configuration.pipeline import MountingConfig, ScanConfig
     from laser_odom.core.events import EventLog
-    from laser_odom.core.validation import ScanValidator
+    from laser_odom.core.preprocess.validation import ScanValidator
     said = []
     events = EventLog(said.append, clock=lambda: 0.0)
     config = ScanConfig(min_valid_points=min_valid_points, deskew=deskew,
@@ -105,7 +105,7 @@ def test_validator_rejects_each_malformed_field_with_its_reason():
 
 def test_validator_rejects_a_span_over_two_pi_by_increment_or_by_angle_fields():
     """Either the beams' span or angle_max - angle_min over 2 pi + SPAN_TOLERANCE rejects."""
-    from laser_odom.core.validation import SPAN_TOLERANCE
+    from laser_odom.core.preprocess.validation import SPAN_TOLERANCE
     limit = 2.0 * math.pi + SPAN_TOLERANCE
     check, _ = validator(min_valid_points=2)
     # Two beams: the span is the increment itself, so the limit is met exactly.
@@ -204,7 +204,7 @@ def test_validator_needs_min_valid_points_readings():
 
 def test_validator_gives_points_in_the_base_frame_of_the_mounting():
     """The validated points are the scan's, moved by the configured laser mounting."""
-    from laser_odom.core.config import MountingConfig
+    from laser_odom.core.configuration.pipeline import MountingConfig
     mounting = MountingConfig(laser_x=0.3, laser_y=-0.1, laser_yaw=0.5)
     check, _ = validator(mounting=mounting)
     points, _ = check.check(field_scan())

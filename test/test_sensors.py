@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from laser_odom.core import se2
-from laser_odom.core.scan import beam_angles, LaserMounting, LaserScan
+from laser_odom.core.scan.laser_scan import beam_angles, LaserMounting, LaserScan
 from laser_odom.core.simulation import (
     ConstantTwist, get_world, LaserModel, render_scan, render_swept_scan, sensor_model,
     sensor_names, SENSORS, simulate, true_ranges, UnknownSensorError, world_names)

@@ -7,11 +7,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserMounting, scan_to_points
+from laser_odom.core.scan.laser_scan import LaserMounting, scan_to_points
 from laser_odom.core.simulation import (
-    EPOCH_NS, get_world, LaserModel, OdometryNoise, render_scan, simulate, true_ranges,
-    UnknownWorldError, world_names)
-from laser_odom.core.simulation import geometry as geo
+    EPOCH_NS, geometry as geo, get_world, LaserModel, OdometryNoise, render_scan, simulate,
+    true_ranges, UnknownWorldError, world_names)
 from laser_odom.core.simulation.raycast import cast_fan, cast_rays
 
 EXACT = LaserModel(noise_sigma=0.0, dropout=0.0)

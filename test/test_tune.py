@@ -13,8 +13,7 @@ import types
 import numpy as np
 import pytest
 
-
-from laser_odom.core.settings import check_values, parameter_specs, settings_from_params
+from laser_odom.core.configuration.node import check_values, parameter_specs, settings_from_params
 from laser_odom.core.simulation import simulate
 from laser_odom.core.tuning import objective as objective_module
 from laser_odom.core.tuning.objective import FAILED_TRIAL_SCORE, run_trial
@@ -219,7 +218,7 @@ def test_reference_free_and_plot_are_wired_to_their_modules(sim, tmp_path, capsy
     def plot_study(path, studies, best, reference):
         calls['plot'] = (studies, best, reference)
         Path(path).write_bytes(b'png')
-    monkeypatch.setitem(sys.modules, 'laser_odom.core.map_quality',
+    monkeypatch.setitem(sys.modules, 'laser_odom.core.evaluation.map_quality',
                         types.SimpleNamespace(reference_free_score=score))
     monkeypatch.setattr(laser_odom.tools, 'plots', types.SimpleNamespace(
         plot_study=plot_study, PlotError=RuntimeError), raising=False)

@@ -12,7 +12,7 @@ from pathlib import Path
 import subprocess
 import sys
 
-from laser_odom.core import warmup
+from laser_odom.core.pipeline import warmup
 from laser_odom.ros.node import WARM_UP_NOTE_SECONDS
 from laser_odom.tools.warmup import main
 
@@ -21,12 +21,12 @@ ROOT = Path(__file__).resolve().parents[1]
 NODE_SCENARIOS = r"""
 import json, math
 import numpy as np
-from laser_odom.core import warmup
+from laser_odom.core.pipeline import warmup
 from laser_odom.core.events import EventLog
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.priors import PriorFeed
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.settings import settings_from_params
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.motion.priors import PriorFeed
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.configuration.node import settings_from_params
 from laser_odom.core.simulation import simulate
 from laser_odom.core.simulation.laser import LaserModel
 from laser_odom.core.trajectory import ImuSamples

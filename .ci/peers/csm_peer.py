@@ -7,8 +7,8 @@ to scan with a constant-velocity first guess, on fr079, mit-csail and intel.
 Each log is loaded with the project's own loader, its scans are written to a text file,
 ``csm_driver`` (csm_driver.c, linked against CSM's library) matches every scan against
 the previous one and writes one pose per scan, and the trajectory is scored by the
-benchmark's own code (``laser_odom.core.benchmark._row``: the metrics of
-``laser_odom.core.metrics.evaluate``, the same ``failed`` - a step whose RPE is above
+benchmark's own code (``laser_odom.core.evaluation.benchmark._row``: the metrics of
+``laser_odom.core.evaluation.metrics.evaluate``, the same ``failed`` - a step whose RPE is above
 0.5 m or 10 deg - and the same timing statistics, here of ``sm_icp`` alone).
 ``invalid`` counts the steps where ``sm_icp`` reported ``valid == 0`` (the driver then
 keeps the prediction), the counterpart of the pipeline's ``rejected`` count.
@@ -16,7 +16,7 @@ keeps the prediction), the counterpart of the pipeline's ``rejected`` count.
 The first guess is the previous step, scaled by ``--dt``: ``scan`` (the default) not at
 all - the previous step repeated, which is how ``CSM_BAR`` was made; ``pipeline`` to
 the time gap as the pipeline's constant-velocity prior does
-(``laser_odom.core.motion.MotionModel``: an effective interval for the logger-stamped
+(``laser_odom.core.motion.model.MotionModel``: an effective interval for the logger-stamped
 Intel log, no guess over a gap longer than ``max_scan_gap``); ``stamps`` to the raw
 stamp differences. ``--preset csm`` (the default, as ``CSM_BAR`` was made) gives CSM
 its own default parameters (sm_options.c), ``--preset ros`` those laser_scan_matcher
@@ -49,10 +49,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from laser_odom.core.benchmark import _row, BenchRow, NOT_APPLICABLE  # noqa: E402
-from laser_odom.core.config import MotionConfig  # noqa: E402
+from laser_odom.core.configuration.pipeline import MotionConfig  # noqa: E402
 from laser_odom.core.datasets import discover_datasets, load_dataset  # noqa: E402
-from laser_odom.core.motion import MotionModel  # noqa: E402
+from laser_odom.core.evaluation.benchmark import _row, BenchRow, NOT_APPLICABLE  # noqa: E402
+from laser_odom.core.motion.model import MotionModel  # noqa: E402
 from laser_odom.core.trajectory import Dataset, Trajectory  # noqa: E402
 
 PEERS = Path(__file__).resolve().parent

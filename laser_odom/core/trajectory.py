@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.scan.laser_scan import LaserScan
 
 
 @dataclass

@@ -1,1 +1,4 @@
-"""Bag and file input/output; rosbags is imported here, never in core."""  # noqa: A005
+"""Bag and file input/output; rosbags is imported here, never in core.
+
+May import: ``laser_odom.core``.
+"""  # noqa: A005

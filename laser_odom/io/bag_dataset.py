@@ -15,7 +15,7 @@ from typing import Callable, Collection, Sequence
 
 import numpy as np
 
-from laser_odom.core.coverage import reference_coverage
+from laser_odom.core.evaluation.coverage import reference_coverage
 from laser_odom.core.trajectory import Dataset, RecordedBag, Trajectory
 from laser_odom.io.bag_reader import BagReader, IMU, LASER_SCAN, ODOMETRY
 from laser_odom.io.tum import read_tum, TumFormatError
@@ -114,7 +114,7 @@ def check_overlap(bag: RecordedBag, name: str, min_coverage: float = 0.0) -> Non
 
     Too little is fewer than two paired scans, or less than ``min_coverage`` of the
     run's duration (the replay's ``--min-coverage`` rule, by time span: a keyframe
-    reference spanning the whole run covers it, :mod:`laser_odom.core.coverage`).
+    reference spanning the whole run covers it, :mod:`laser_odom.core.evaluation.coverage`).
     """
     stamps = np.array([scan.stamp_ns for scan in bag.scans], dtype=np.int64)
     reference = bag.reference if bag.reference is not None else Trajectory()

@@ -7,7 +7,8 @@ non-standard index, a recording cut short - are read record by record (see
 :mod:`laser_odom.io.ros1_records` and :mod:`laser_odom.io.ros2_salvage`), so every
 message that is intact is delivered, and then :class:`BagTruncatedError` says at
 which message reading stopped. Messages come out as the core's types
-(:class:`~laser_odom.core.scan.LaserScan`, :class:`~laser_odom.core.trajectory.Trajectory`).
+(:class:`~laser_odom.core.scan.laser_scan.LaserScan`,
+:class:`~laser_odom.core.trajectory.Trajectory`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any, Collection, Iterator
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import ImuSamples, Trajectory
 from laser_odom.io.bag_sources import (
     Message, Ros1RecordSource, Ros2SalvageSource, RosbagsSource, SourceReadError)

@@ -22,7 +22,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import get_typestore, Stores
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 

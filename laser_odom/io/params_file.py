@@ -21,7 +21,7 @@ the same to the live node and to the replay, the benchmark and the tools:
 - values are YAML scalars as rcl reads them (``1e6`` is a number, ``yes`` is true).
 
 Which parameters exist, their types and ranges are judged afterwards by
-:func:`laser_odom.core.settings.check_values`, for files and for ``-p`` alike.
+:func:`laser_odom.core.configuration.node.check_values`, for files and for ``-p`` alike.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import yaml
 
-from laser_odom.core.params import flatten, ParameterError
-from laser_odom.core.settings import check_values, CheckedValues
+from laser_odom.core.configuration.node import check_values, CheckedValues
+from laser_odom.core.parameters import flatten, ParameterError
 
 NODE_NAME = 'laser_odom'
 """The odometry node's default name."""

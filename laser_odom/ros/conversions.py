@@ -27,8 +27,8 @@ import numpy as np
 from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg, PointCloud2, PointField
 
 from laser_odom.core import se2
-from laser_odom.core.pipeline import OdometryEstimate
-from laser_odom.core.scan import LaserMounting, LaserScan
+from laser_odom.core.pipeline.odometry import OdometryEstimate
+from laser_odom.core.scan.laser_scan import LaserMounting, LaserScan
 
 UNOBSERVED_VARIANCE = 1.0e6
 """Variance [m^2 or rad^2] published for z, roll and pitch: a planar odometry does not

@@ -13,11 +13,11 @@ from pathlib import Path
 import sys
 import textwrap
 
-from laser_odom.core.config import PIPELINE_GROUPS, PipelineConfig
+from laser_odom.core.configuration.node import (
+    NodeConfig, parameter_specs, ParameterSpec, PriorConfig)
+from laser_odom.core.configuration.pipeline import PIPELINE_GROUPS, PipelineConfig
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.params import param_fields
-from laser_odom.core.priors import PriorConfig
-from laser_odom.core.settings import NodeConfig, parameter_specs, ParameterSpec
+from laser_odom.core.parameters import param_fields
 
 NODE_KEY = '/**'
 """YAML node key: any node name and namespace, so a renamed or namespaced node still

@@ -26,9 +26,9 @@ from typing import Iterable
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
 
-from laser_odom.core.pipeline import EVENTS, OUTCOMES
-from laser_odom.core.settings import NodeConfig
-from laser_odom.core.validation import REJECTIONS
+from laser_odom.core.configuration.node import NodeConfig
+from laser_odom.core.pipeline.odometry import EVENTS, OUTCOMES
+from laser_odom.core.preprocess.validation import REJECTIONS
 
 
 REJECTED_PREFIX = 'rejected_'

@@ -13,7 +13,7 @@ from geometry_msgs.msg import TransformStamped
 from rclpy.node import Node
 from rclpy.time import Time
 
-from laser_odom.core.scan import LaserMounting
+from laser_odom.core.scan.laser_scan import LaserMounting
 from laser_odom.ros.conversions import mounting_from_transform
 
 try:

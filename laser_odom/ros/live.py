@@ -2,11 +2,11 @@
 
 At start-up the values given to the node (``--params-file`` / ``-p``, as rcl resolved
 them for this node's name and namespace) are judged by
-:func:`laser_odom.core.settings.check_values` - the rules the replay and the tools
+:func:`laser_odom.core.configuration.node.check_values` - the rules the replay and the tools
 apply to the same file: unknown names are warned about, an integer is taken where a
 floating-point number is declared, a wrong type or range stops start-up with a
 one-line :class:`StartupError`. Every parameter of
-:func:`laser_odom.core.settings.parameter_specs` is then declared with its value.
+:func:`laser_odom.core.configuration.node.parameter_specs` is then declared with its value.
 
 While running, a change through the parameter service (``ros2 param set``) is judged
 by :meth:`LiveParameters.refusal` before rclpy sees it: an unknown name is refused
@@ -24,12 +24,12 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from laser_odom.core.config import MountingConfig, PipelineConfig
-from laser_odom.core.params import check_value, ParameterError, yaml_word
-from laser_odom.core.scan import LaserMounting
-from laser_odom.core.settings import (
+from laser_odom.core.configuration.node import (
     check_change, check_values, NodeSettings, parameter_specs, ROS_PARAMETERS,
     settings_from_params, unknown_parameter_warning)
+from laser_odom.core.configuration.pipeline import MountingConfig, PipelineConfig
+from laser_odom.core.parameters import check_value, ParameterError, yaml_word
+from laser_odom.core.scan.laser_scan import LaserMounting
 from laser_odom.io.params_file import ParamsFile, section_warnings
 from laser_odom.ros.parameters import descriptor
 
@@ -111,7 +111,7 @@ class LiveParameters:
 
         ``ros2 param set /laser_odom max_scan_gap 5`` sends an integer: taken as 5.0.
         ``ros2 param set /laser_odom global_search off`` sends ``false`` (YAML): taken
-        as ``'off'`` (:func:`laser_odom.core.params.yaml_word`).
+        as ``'off'`` (:func:`laser_odom.core.parameters.yaml_word`).
         """
         result = []
         for p in parameters:

@@ -3,7 +3,7 @@
 Subscribes ``scan`` (``sensor_msgs/LaserScan``, sensor-data QoS, depth 1) and publishes
 ``odom`` (``nav_msgs/Odometry``) and ``pose`` (``geometry_msgs/PoseStamped``) stamped
 with the scan's own stamp, plus ``odom_frame -> base_frame`` on TF when tf2_ros is
-available. The odometry is :class:`laser_odom.core.pipeline.OdometryPipeline`, the
+available. The odometry is :class:`laser_odom.core.pipeline.odometry.OdometryPipeline`, the
 object the replay harness drives offline.
 
 Each scan is matched in the subscription callback itself, so the result is published
@@ -44,8 +44,8 @@ from sensor_msgs.msg import LaserScan as LaserScanMsg, PointCloud2
 from std_srvs.srv import Trigger
 
 from laser_odom.core.events import EventLog
-from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
-from laser_odom.core.warmup import warm_up
+from laser_odom.core.pipeline.odometry import OdometryEstimate, OdometryPipeline
+from laser_odom.core.pipeline.warmup import warm_up
 from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
 from laser_odom.io.text_output import reader_may_leave
 from laser_odom.ros import extrinsic

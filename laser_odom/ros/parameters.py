@@ -1,8 +1,8 @@
 """The node's parameters as ROS declares them: description, range and read-only flag.
 
 What the parameters are and how values are judged is ROS-free
-(:mod:`laser_odom.core.settings`); this module only turns a
-:class:`~laser_odom.core.settings.ParameterSpec` into an rcl ``ParameterDescriptor``.
+(:mod:`laser_odom.core.configuration.node`); this module only turns a
+:class:`~laser_odom.core.configuration.node.ParameterSpec` into an rcl ``ParameterDescriptor``.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from laser_odom.core.settings import ParameterSpec
+from laser_odom.core.configuration.node import ParameterSpec
 
 
 def descriptor(spec: ParameterSpec) -> ParameterDescriptor:

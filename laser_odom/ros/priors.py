@@ -3,7 +3,7 @@
 Only the prior named by the ``prior`` parameter is subscribed to (``wheel_odom``,
 ``nav_msgs/Odometry``, or ``imu``, ``sensor_msgs/Imu``; relative, remappable names), so
 an unused prior costs nothing. The buffering and interpolation are ROS-free
-(:mod:`laser_odom.core.priors`) and shared with the replay harness.
+(:mod:`laser_odom.core.motion.priors`) and shared with the replay harness.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from rclpy.subscription import Subscription
 from sensor_msgs.msg import Imu
 
 from laser_odom.core import se2
-from laser_odom.core.priors import external_prior, ImuBuffer, OdometryBuffer, PriorConfig
+from laser_odom.core.configuration.node import PriorConfig
+from laser_odom.core.motion.priors import external_prior, ImuBuffer, OdometryBuffer
 from laser_odom.ros.conversions import imu_yaw_from_msg, odometry_pose_from_msg
 
 PRIOR_QOS = QoSProfile(

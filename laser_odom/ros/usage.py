@@ -11,7 +11,7 @@ from pathlib import Path
 import sys
 import textwrap
 
-from laser_odom.core.settings import parameter_specs, ParameterSpec
+from laser_odom.core.configuration.node import parameter_specs, ParameterSpec
 from laser_odom.ros.priors import PRIOR_TOPICS
 
 PACKAGE = 'laser_odom'

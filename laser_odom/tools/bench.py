@@ -38,18 +38,17 @@ import sys
 import time
 from typing import Any, Callable, Mapping, Sequence, TextIO
 
-from laser_odom.core.benchmark import (
-    BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    REAL_REFERENCE_NOISE, REFERENCE_MODES, search_timing, SearchTimingRow, SIMULATED,
-    simulated_scanner,
-    wheel_odometry_row)
-from laser_odom.core.config import pipeline_config_from_params
-from laser_odom.core.consistency import NO_REFERENCE_NOISE, ReferenceNoise
+from laser_odom.core.configuration.pipeline import pipeline_config_from_params
 from laser_odom.core.datasets import (
     DatasetError, discover_datasets, KNOWN_DATASETS, load_dataset, SUBSAMPLED_DATASETS,
     subsampled_datasets)
+from laser_odom.core.evaluation.benchmark import (
+    BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
+    REAL_REFERENCE_NOISE, REFERENCE_MODES, search_timing, SearchTimingRow, SIMULATED,
+    simulated_scanner, wheel_odometry_row)
+from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE, ReferenceNoise
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.params import ParameterError
+from laser_odom.core.parameters import ParameterError
 from laser_odom.core.trajectory import Dataset
 from laser_odom.io.bag_dataset import (
     BAG_GROUND_TRUTH, bag_loaders, BAG_ODOMETRY, NO_REFERENCE)

@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.metrics import associate, evaluate, TrajectoryErrors
+from laser_odom.core.evaluation.metrics import associate, evaluate, TrajectoryErrors
 from laser_odom.core.trajectory import Trajectory
 
 MISSING_MATPLOTLIB = '--plot needs matplotlib: pip install matplotlib'
@@ -115,7 +115,7 @@ def _pose_errors(estimate: Trajectory, reference: Trajectory,
                  errors: TrajectoryErrors | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return the alignment, the paired estimate stamps and their position errors [m].
 
-    The alignment is the ATE's (:func:`laser_odom.core.metrics.evaluate`); each
+    The alignment is the ATE's (:func:`laser_odom.core.evaluation.metrics.evaluate`); each
     estimate is compared with the reference interpolated to its stamp.
     """
     alignment = errors.alignment if errors is not None else evaluate(
@@ -191,7 +191,7 @@ def plot_replay(path: str | Path, stamps_ns: np.ndarray, poses: np.ndarray,
     ``points`` holds each pose's scan points in the base frame (None or empty: the
     trajectory only, as after ``--live``); ``reference`` is ``(stamps_ns, poses)``,
     aligned to the estimate with the ATE's SE(2) alignment - that of ``errors`` (the
-    result of :func:`laser_odom.core.metrics.evaluate`) when given. Without a
+    result of :func:`laser_odom.core.evaluation.metrics.evaluate`) when given. Without a
     reference, or one that pairs with no estimate, the right panel shows the
     estimate's rotation per step.
     """

@@ -1,9 +1,9 @@
 """``laser_odom_replay BAG``: run the odometry over a recorded bag, offline or through the node.
 
 By default the scans are fed in-process through the same
-:class:`~laser_odom.core.pipeline.OdometryPipeline` the node runs, with the node's own
+:class:`~laser_odom.core.pipeline.odometry.OdometryPipeline` the node runs, with the node's own
 parameter file (``--params-file``) and the same prior buffers
-(:mod:`laser_odom.core.priors`). With ``--live`` they are published over DDS to a
+(:mod:`laser_odom.core.motion.priors`). With ``--live`` they are published over DDS to a
 running ``laser_odom_node`` instead, one at a time (or, with ``--rate R``, at ``R``
 times their recorded rate without waiting), and its ``odom`` answers are recorded (see
 :mod:`laser_odom.tools.replay_live`).
@@ -11,7 +11,7 @@ times their recorded rate without waiting), and its ``odom`` answers are recorde
 Outputs: ``--tum`` (one line per processed scan, written atomically), ``--output-bag``
 (``/odom`` with covariance and ``/pose``), ``--plot`` (a PNG, :mod:`laser_odom.tools.plots`),
 and a summary; ``--reference`` adds how many
-poses it pairs with, ATE and RPE (:mod:`laser_odom.core.metrics`), and is an input
+poses it pairs with, ATE and RPE (:mod:`laser_odom.core.evaluation.metrics`), and is an input
 error when it pairs with less than ``--min-coverage`` of them (the outputs are
 written first). A damaged bag is replayed up to the damage, the outputs are written,
 and the exit code is 2. Exit codes: 0 ok, 1 runtime failure, 2 input error (missing or
@@ -26,22 +26,21 @@ from pathlib import Path
 import sys
 from typing import Any, Callable, Iterator
 
-from laser_odom.core.config import PRIORS
+from laser_odom.core.configuration.node import NodeSettings, PriorConfig, settings_from_params
+from laser_odom.core.configuration.pipeline import PRIORS
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.params import ParameterError
-from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
-from laser_odom.core.priors import PriorConfig, PriorFeed
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.scan import LaserScan
-from laser_odom.core.settings import NodeSettings, settings_from_params
+from laser_odom.core.motion.priors import PriorFeed
+from laser_odom.core.parameters import ParameterError
+from laser_odom.core.pipeline.odometry import OdometryEstimate, OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_reader import (
     BagError, BagReader, BagTruncatedError, LASER_SCAN)
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import reader_may_leave
-from laser_odom.ros.graph import NODE_NAME, Target
 from laser_odom.tools.arguments import number_in
 from laser_odom.tools.plots import (
     check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
@@ -49,6 +48,7 @@ from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import (
     DEFAULT_MIN_COVERAGE, print_summary, read_reference, ReplayError, ReplayRecord,
     write_outputs)
+from laser_odom.tools.replay_target import params_node_name
 from laser_odom.tools.stopping import stop_between_scans
 
 PROG = 'laser_odom_replay'
@@ -118,16 +118,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--quiet', action='store_true',
                    help='no progress lines and no warnings (errors still show)')
     return p
-
-
-def live_target(args: argparse.Namespace) -> Target:
-    """Return the node ``--live`` drives, as far as the options name it (the rest is found)."""
-    return Target(args.namespace, args.node_name, args.scan_topic_out, args.odom_topic_in)
-
-
-def params_node_name(args: argparse.Namespace) -> str:
-    """Return the fully qualified node name the params file is read for (``/laser_odom``)."""
-    return live_target(args).node_fqn() or '/' + (args.node_name or NODE_NAME).strip('/')
 
 
 def load_settings(args: argparse.Namespace) -> NodeSettings:

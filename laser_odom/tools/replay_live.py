@@ -40,7 +40,8 @@ from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg
 from std_srvs.srv import Trigger
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.motion.priors import PriorFeed
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.io.bag_reader import BagTruncatedError
 from laser_odom.ros.conversions import (
     covariance_3x3, ns_to_stamp, odometry_pose_from_msg, planar_pose_msg, scan_to_msg,
@@ -51,8 +52,8 @@ from laser_odom.ros.graph import (
     OPTIONS_HINT, wait_for_node)
 from laser_odom.ros.priors import PRIOR_TOPICS
 from laser_odom.tools.playback import play, RecordedClock
-from laser_odom.tools.replay import live_target, PriorFeed
 from laser_odom.tools.replay_report import ReplayError, ReplayRecord
+from laser_odom.tools.replay_target import live_target
 
 DIAGNOSTICS_WAIT = 2.5
 """Seconds to wait for a diagnostics report (the node sends one per second)."""

@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from laser_odom.core.coverage import reference_coverage
-from laser_odom.core.metrics import distance_travelled, evaluate
-from laser_odom.core.pipeline import OUTCOMES
+from laser_odom.core.evaluation.coverage import reference_coverage
+from laser_odom.core.evaluation.metrics import distance_travelled, evaluate
+from laser_odom.core.pipeline.odometry import OUTCOMES
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_writer import write_message_bag
 from laser_odom.io.tum import read_tum, TumFormatError, write_tum
@@ -20,7 +20,7 @@ from laser_odom.io.tum import read_tum, TumFormatError, write_tum
 
 DEFAULT_MIN_COVERAGE = 0.5
 """Least share of the run's duration a ``--reference`` must cover (``--min-coverage``,
-judged by time span: :mod:`laser_odom.core.coverage`): an ATE over a few shared stamps
+judged by time span: :mod:`laser_odom.core.evaluation.coverage`): an ATE over a few shared stamps
 says nothing about the run."""
 
 
@@ -223,7 +223,7 @@ def check_coverage(record: ReplayRecord, reference_path: Any, reference: Traject
                    min_coverage: float) -> str:
     """Return the line saying how much of the run the reference covers.
 
-    Coverage is judged by time span (:mod:`laser_odom.core.coverage`): a reference of
+    Coverage is judged by time span (:mod:`laser_odom.core.evaluation.coverage`): a reference of
     keyframes that spans the run covers it. Raises :class:`ReplayError` when it covers
     less than ``min_coverage`` of the run's duration (a reference of another run,
     another clock, or one that stops early).

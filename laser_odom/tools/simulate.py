@@ -18,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from laser_odom.core.scan import LaserMounting
+from laser_odom.core.scan.laser_scan import LaserMounting
 from laser_odom.core.simulation import (
     DEFAULT_MOTION, DEFAULT_SENSOR, DEFAULT_WORLD, LaserModel, MOTIONS, ODOMETRY_RATE,
     OdometryNoise, sensor_model, sensor_names, SENSORS, simulate, STAMP_AT, world_names)

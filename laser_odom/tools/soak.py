@@ -19,11 +19,11 @@ from typing import Callable, Iterator, NoReturn, Sequence
 
 import numpy as np
 
-from laser_odom.core.config import DEFAULT_MATCHER, PipelineConfig, REFERENCES
+from laser_odom.core.configuration.pipeline import DEFAULT_MATCHER, PipelineConfig, REFERENCES
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.pipeline import OdometryPipeline
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.pipeline.odometry import OdometryPipeline
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.simulation import (
     EPOCH_NS, get_world, LaserModel, render_scan, world_names)
 from laser_odom.tools.arguments import number_in

@@ -24,8 +24,8 @@ import sys
 import tempfile
 from typing import Any, Sequence
 
+from laser_odom.core.configuration.node import parameter_specs
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.settings import parameter_specs
 from laser_odom.core.trajectory import RecordedBag
 from laser_odom.core.tuning.objective import OBJECTIVES, REFERENCE_FREE
 from laser_odom.core.tuning.space import (

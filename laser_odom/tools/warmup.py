@@ -4,7 +4,7 @@ numba compiles the matchers' kernels on first use and caches them on disk; after
 install (or an upgrade) that takes tens of seconds to minutes once. ``make`` runs this
 after installing; on a colcon install, run it once (``ros2 run laser_odom
 laser_odom_warmup``). It runs every matcher with each setting that can send its kernels
-other argument types (:func:`laser_odom.core.warmup.variants`), so that no setting
+other argument types (:func:`laser_odom.core.pipeline.warmup.variants`), so that no setting
 compiles a kernel inside the node later; a second run only loads them and says so.
 """
 
@@ -14,7 +14,7 @@ import argparse
 import sys
 
 from laser_odom.core.matchers import matcher_names
-from laser_odom.core.warmup import warm_up
+from laser_odom.core.pipeline.warmup import warm_up
 
 PROG = 'laser_odom_warmup'
 

@@ -6,6 +6,8 @@ directory. Loaders
 raise :class:`DatasetError` (a ``ValueError``) with a ``file:line: what is wrong``
 message; malformed lines are skipped and logged on the ``laser_odom.core.datasets``
 logger unless ``strict=True``.
+
+May import: ``se2``, ``scan``, ``trajectory``.
 """
 
 from laser_odom.core.datasets.carmen import load_carmen

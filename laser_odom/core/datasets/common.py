@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserScan
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import Trajectory
 
 LOGGER = logging.getLogger('laser_odom.core.datasets')

@@ -1,6 +1,13 @@
 """Scan matchers: one interface (:class:`ScanMatcher`), one registry by name.
 
-Importing this package registers every matcher module listed below.
+One package per matcher - ``icp``, ``plicp``, ``nicp``, ``imls`` - each with its
+wrapper (``matcher``: the :class:`ScanMatcher` and its configuration), its model and
+its compiled ``solver``; beside them the shared parts: the interface (``base``), the
+``registry``, ``correspondences``, ``robust`` kernels and ``information`` (information
+and covariance of a match). Importing this package registers every matcher listed below.
+
+May import: ``se2``, ``parameters``, ``scan``, ``uncertainty``. A matcher's package
+imports the shared parts, never another matcher.
 """
 
 from laser_odom.core.matchers import icp  # noqa: F401  (registers 'icp')

@@ -14,8 +14,8 @@ from typing import ClassVar
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.params import param
-from laser_odom.core.scan import ScanPoints
+from laser_odom.core.parameters import param
+from laser_odom.core.scan.laser_scan import ScanPoints
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Correspondence search shared by all matchers: nearest reference points by bearing.
 
-Every matcher pairs through a :class:`laser_odom.core.nearest.BearingIndex` (exact
+Every matcher pairs through a :class:`laser_odom.core.scan.nearest.BearingIndex` (exact
 gated nearest-neighbour search, compiled), built once per reference scan.
 """
 
@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from laser_odom.core.nearest import BearingIndex
+from laser_odom.core.scan.nearest import BearingIndex
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any, Mapping, TypeVar
 
 from laser_odom.core.matchers.base import MatcherConfig, ScanMatcher
-from laser_odom.core.params import replace_checked
+from laser_odom.core.parameters import replace_checked
 
 _MATCHERS: dict[str, type[ScanMatcher]] = {}
 

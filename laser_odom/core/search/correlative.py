@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.scan import densify, ScanPoints
+from laser_odom.core.scan.laser_scan import densify, ScanPoints
 from laser_odom.core.search.grid import LIKELIHOOD_STEPS, LikelihoodGrid
 from laser_odom.core.search.tree import SearchTree
 

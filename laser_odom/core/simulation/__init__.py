@@ -10,6 +10,8 @@ sweep while the robot moves; :mod:`.sensors` has presets of common lidars.
 :func:`render_scan` renders one scan at a known pose (or one pose per beam), and
 :func:`render_swept_scan` one scan taken while following a motion; :func:`drop_to_steps`
 loses scans until the steps are as large as asked (large motion between scans).
+
+May import: ``se2``, ``scan``, ``trajectory``.
 """
 
 from laser_odom.core.simulation.laser import (

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserMounting, LaserScan
+from laser_odom.core.scan.laser_scan import LaserMounting, LaserScan
 from laser_odom.core.simulation.motions import Motion
 from laser_odom.core.simulation.raycast import cast_fan, cast_rays_from
 from laser_odom.core.simulation.world import get_world, World
@@ -182,7 +182,7 @@ def true_ranges(world: World | str, base_pose: se2.Pose | np.ndarray,
     scan swept while the robot moves (see :func:`beam_base_poses`); beam ``i`` is then
     cast from ``base_pose[i] * mounting``.
     An upside-down laser is mirrored: its beam at angle ``a`` looks along ``-a`` in
-    the un-flipped frame, matching :func:`laser_odom.core.scan.scan_to_points`.
+    the un-flipped frame, matching :func:`laser_odom.core.scan.laser_scan.scan_to_points`.
     """
     w = get_world(world) if isinstance(world, str) else world
     sign = -1.0 if mounting is not None and mounting.upside_down else 1.0

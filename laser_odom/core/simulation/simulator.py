@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from laser_odom.core import se2
-from laser_odom.core.scan import LaserMounting
+from laser_odom.core.scan.laser_scan import LaserMounting
 from laser_odom.core.simulation.laser import beam_base_poses, LaserModel, render_scan
 from laser_odom.core.simulation.motions import DEFAULT_MOTION, Motion, motion_profile
 from laser_odom.core.simulation.odometry import OdometryNoise, wheel_odometry

@@ -4,4 +4,6 @@
 runs one trial over the bags and scores it (against a reference or reference-free),
 and :mod:`.study` drives the Optuna studies. Optuna is imported by :mod:`.study` only
 when a study runs, so the node and the other tools never need it.
+
+May import: every layer below it (``evaluation`` and down).
 """

@@ -1,20 +1,20 @@
 """Score one trial of ``laser_odom_tune``: run the odometry over the bags, judge the run.
 
 A trial is a set of node parameter values. Each bag's scans go through a fresh
-:class:`~laser_odom.core.pipeline.OdometryPipeline` built from those values by the
-node's own rules (:func:`~laser_odom.core.settings.settings_from_params`), with the
+:class:`~laser_odom.core.pipeline.odometry.OdometryPipeline` built from those values by the
+node's own rules (:func:`~laser_odom.core.configuration.node.settings_from_params`), with the
 bag's wheel odometry or IMU fed as the prior exactly as the replay feeds it
-(:class:`~laser_odom.core.priors.PriorFeed`), so a tuned value means live what it
+(:class:`~laser_odom.core.motion.priors.PriorFeed`), so a tuned value means live what it
 meant here. The run is then scored, lower being better:
 
 - ``rpe`` (with a reference): mean translational RPE [m] + :data:`ROTATION_LENGTH` x
   mean rotational RPE [rad] + :data:`FAILED_STEP_PENALTY` per failed step (RPE above
-  0.5 m or 10 deg, :mod:`laser_odom.core.metrics`): a lost step is what a user
+  0.5 m or 10 deg, :mod:`laser_odom.core.evaluation.metrics`): a lost step is what a user
   notices first, so it costs more than its share of the mean;
 - ``ate`` (with a reference): the RMS absolute trajectory error after SE(2) alignment;
 - ``reference_free``: the sharpness of the local maps the scans make at the
   estimated poses, plus, weighted, the disagreement with wheel odometry
-  (:func:`laser_odom.core.map_quality.reference_free_score`).
+  (:func:`laser_odom.core.evaluation.map_quality.reference_free_score`).
 
 Several bags score the mean of their scores. This module does not import Optuna:
 the tool passes a ``report`` callback that may stop a hopeless trial (pruning).
@@ -28,13 +28,13 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from laser_odom.core.configuration.node import settings_from_params
+from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
-from laser_odom.core.metrics import evaluate
-from laser_odom.core.pipeline import OdometryEstimate, OdometryPipeline
-from laser_odom.core.priors import PriorFeed
-from laser_odom.core.runner import run_pipeline
-from laser_odom.core.scan import LaserScan
-from laser_odom.core.settings import settings_from_params
+from laser_odom.core.motion.priors import PriorFeed
+from laser_odom.core.pipeline.odometry import OdometryEstimate, OdometryPipeline
+from laser_odom.core.pipeline.runner import run_pipeline
+from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import RecordedBag, Trajectory
 
 OBJECTIVES = ('rpe', 'ate')
@@ -98,7 +98,8 @@ def score_run(run: _Run, bag: RecordedBag, objective: str, odom_weight: float = 
     if len(trajectory) < 2:
         raise ValueError('fewer than two scans were processed')
     if objective == REFERENCE_FREE:
-        from laser_odom.core.map_quality import reference_free_score  # written alongside
+        from laser_odom.core.evaluation.map_quality import (  # written alongside
+            reference_free_score)
         return float(reference_free_score(
             trajectory.stamps_ns, trajectory.poses, run.points or [],
             odometry=bag.odometry if odom_weight > 0.0 else None, odom_weight=odom_weight))

@@ -2,7 +2,7 @@
 
 Per matcher the space holds the matcher's own parameters and the pipeline settings
 that change the trajectory (:data:`PIPELINE_PARAMETERS`). The ranges come from the
-declared parameter ranges (:mod:`laser_odom.core.params`), narrowed around the
+declared parameter ranges (:mod:`laser_odom.core.parameters`), narrowed around the
 starting value ``v`` (the node's default, or the ``--params-file`` value):
 
 - a floating-point parameter searches ``[v / 4, v * 4]`` clipped to its declared range,
@@ -34,8 +34,8 @@ from typing import Any, Mapping, Protocol, Sequence
 
 import yaml
 
-from laser_odom.core.params import flatten, ParamInfo, yaml_word
-from laser_odom.core.settings import parameter_specs, ParameterSpec
+from laser_odom.core.configuration.node import parameter_specs, ParameterSpec
+from laser_odom.core.parameters import flatten, ParamInfo, yaml_word
 
 PIPELINE_PARAMETERS = (
     'prior', 'max_correction_linear', 'max_correction_angular', 'min_inlier_ratio',
@@ -78,7 +78,8 @@ class Trial(Protocol):
     def suggest_int(self, name: str, low: int, high: int, *,
                     log: bool = False) -> int: ...  # noqa: D102, E704
 
-    def suggest_categorical(self, name: str, choices: Sequence[Any]) -> Any: ...  # noqa: D102, E501, E704
+    def suggest_categorical(self, name: str,
+                            choices: Sequence[Any]) -> Any: ...  # noqa: D102, E501, E704
 
 
 @dataclass(frozen=True)

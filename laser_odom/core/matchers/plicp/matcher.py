@@ -1,0 +1,263 @@
+"""Point-to-line ICP (PL-ICP) with the exact closed-form step of Censi.
+
+Censi, "An ICP variant using a point-to-line metric", ICRA 2008. Each current point,
+moved by the current estimate, is paired with the segment between its nearest
+reference point ``j1`` (one bounded search in the bearing index) and the closer of ``j1``'s
+neighbours in beam order (Sec. III, step 2); pairs across a range discontinuity or a
+gap of dropped beams are not segments. The error is the distance from the point to
+the line through that segment, ``n^T (R p + t - q)``, and each iteration minimises the
+sum of its squares exactly (Sec. IV and appendix; :mod:`.plicp.solver`).
+
+Around that core: a coarse phase (wide gate, fixed keep fraction) brings a rough
+prediction to the optimum, then a fine phase (tight gate, adaptive trimming of the
+worst residuals) keeps moving people and unmatched scan edges out of the fit; the
+iteration stops on a small step, a repeated pairing (a cycle, as CSM detects it) or
+the cap; a poor result is retried from the rotations where the two scans' wall
+directions agree. The information matrix is the point-to-line Hessian with surface
+normals fitted over a metre of wall, scaled by the residual variance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
+from laser_odom.core.matchers.information import (
+    covariance_from_information, point_to_line_information)
+from laser_odom.core.matchers.plicp.segments import (
+    pair_with_segments, Pairs, reference_segments, ReferenceSegments)
+from laser_odom.core.matchers.plicp.solver import iterate
+from laser_odom.core.matchers.registry import register
+from laser_odom.core.parameters import param, retune
+from laser_odom.core.scan.laser_scan import ScanPoints
+from laser_odom.core.scan.nearest import BearingIndex
+from laser_odom.core.scan.normals import estimate_normals
+
+
+@dataclass
+class PlicpConfig(MatcherConfig):
+    """PL-ICP settings; the defaults are tuned on the benchmark logs (fr079, MIT, Intel)."""
+
+    max_iterations: int = param(
+        50, 'Iteration cap of one match (and of each restart).', 1, 500)
+    max_correspondence_distance: float = param(
+        0.15, 'Once the estimate settles, a current point farther than this [m] from '
+        'every reference point is not paired.', 0.01, 10.0)
+    convergence_translation: float = retune(MatcherConfig, 'convergence_translation', 1e-4)
+    convergence_rotation: float = retune(MatcherConfig, 'convergence_rotation', 1e-4)
+    covariance_scale: float = retune(MatcherConfig, 'covariance_scale', 2.0)
+    covariance_shared_scan: float = retune(MatcherConfig, 'covariance_shared_scan', 0.6)
+    covariance_bias: float = retune(MatcherConfig, 'covariance_bias', 0.125)
+    covariance_bias_correlation: float = retune(MatcherConfig, 'covariance_bias_correlation',
+                                                0.98)
+    covariance_baseline_falloff: float = retune(MatcherConfig, 'covariance_baseline_falloff',
+                                                1.0)
+    map_covariance_scale: float = retune(MatcherConfig, 'map_covariance_scale', 1.5)
+    max_beam_gap: int = param(
+        3, 'Reference points whose beam indices differ by more than this do not form '
+        'a segment.', 1, 1000)
+    max_segment_length: float = param(
+        0.5, 'Reference neighbours farther apart than this [m] are a range '
+        'discontinuity, not a segment.', 0.01, 10.0)
+    min_keep_fraction: float = param(
+        0.9, 'Trimming: always keep at least this fraction of the paired points.',
+        0.1, 1.0)
+    max_keep_fraction: float = param(
+        0.95, 'Trimming: keep at most this fraction of the paired points.', 0.1, 1.0)
+    trim_sigma: float = param(
+        3.0, 'Trimming: keep residuals within this many robust sigmas (1.4826 MAD), '
+        'clipped to the fractions above.', 0.5, 100.0)
+    coarse_keep_fraction: float = param(
+        0.95, 'While an iteration still moves the pose by more than coarse_step (the '
+        'coarse phase), keep this fixed fraction of the pairs: far from the optimum '
+        'correct pairs have large residuals too (0 = no coarse phase).', 0.0, 1.0)
+    coarse_correspondence_distance: float = param(
+        0.5, 'Pairing distance [m] of the coarse phase, which has to reach the optimum '
+        'from the prediction.', 0.01, 10.0)
+    coarse_step: float = param(
+        0.01, 'Step [m and rad] below which the coarse phase ends.', 0.0, 1.0)
+    restart_residual: float = param(
+        0.012, 'A match that did not converge or whose RMS residual exceeds this [m] is '
+        'retried from the rotations where the surface directions of the two scans '
+        'agree (0 = never).', 0.0, 10.0)
+    map_restart_residual: float = param(
+        0.02, 'restart_residual against a view of the local map (reference: local_map): '
+        'its lines are averages of many scans ray-cast across map cells, and even correct '
+        'matches leave larger residuals on them (0 = never).', 0.0, 10.0)
+    restart_max_rotation: float = param(
+        0.4, 'Restart rotations are searched this far [rad] around the guess.',
+        0.0, math.pi / 2)
+    restart_candidates: int = param(
+        4, 'Number of restart rotations tried.', 0, 20)
+    information_window: float = param(
+        1.0, 'Length of surface [m] over which the normals used for the information '
+        'matrix are fitted (a two-point segment normal is too noisy for it).', 0.01, 10.0)
+
+
+@dataclass
+class _Run:
+    """One PL-ICP iteration sequence from one initial guess."""
+
+    estimate: np.ndarray
+    converged: bool
+    iterations: int
+    pairs: Pairs
+    moved: np.ndarray
+    residuals: np.ndarray
+
+    @property
+    def rms(self) -> float:
+        """RMS point-to-line residual of the kept pairs at the final estimate [m]."""
+        return float(np.sqrt(np.mean(self.residuals ** 2)))
+
+
+@register
+class PlicpMatcher(ScanMatcher):
+    """PL-ICP: beam-order segment correspondences, trimming, exact closed-form step."""
+
+    name = 'plicp'
+    config_type = PlicpConfig
+    config: PlicpConfig
+
+    def match(self, reference: ScanPoints, current: ScanPoints,
+              initial_guess: se2.Pose) -> MatchResult:
+        """Align ``current`` to ``reference`` starting from ``initial_guess``."""
+        cfg = self.config
+        guess = np.array(initial_guess, dtype=float)
+        if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
+            return MatchResult.failure(guess, reason='too few points')
+        segments = reference_segments(reference, cfg.max_beam_gap, cfg.max_segment_length,
+                                      cfg.information_window)
+        run = self._run(segments, reference.bearing_index, current, guess)
+        iterations = run.iterations if run is not None else 0
+        limit = cfg.map_restart_residual if reference.virtual else cfg.restart_residual
+        if limit > 0.0 and (run is None or not run.converged or run.rms > limit):
+            run, extra = self._restart(segments, reference, current, guess, run, limit)
+            iterations += extra
+        if run is None:
+            return MatchResult.failure(guess, iterations, 0, 'too few pairs')
+        # Jacobians at the final estimate (rotated points R p = (R p + t) - t), with the
+        # surface normals: the information the scene's geometry really holds.
+        information = point_to_line_information(
+            run.moved - run.estimate[:2], segments.surface_normals[run.pairs.nearest],
+            run.residuals, np.ones(len(run.residuals)))
+        return MatchResult(
+            pose=run.estimate, converged=run.converged, iterations=iterations,
+            inlier_ratio=len(run.residuals) / len(current), residual=run.rms,
+            information=information, covariance=covariance_from_information(information),
+            correspondences=len(run.residuals))
+
+    def _restart(self, segments: ReferenceSegments, reference: ScanPoints,
+                 current: ScanPoints, guess: se2.Pose, first: _Run | None,
+                 limit: float) -> tuple[_Run | None, int]:
+        """Retry from the rotations where the wall directions agree; keep the best run.
+
+        PL-ICP only converges near its guess, and a prediction can be tens of degrees
+        off after a jerky turn (CSM restarts from perturbed guesses for the same
+        reason). Runs are ranked by convergence, then by the fraction of current points
+        within ``limit`` (the restart residual) of their line (a consensus, comparable
+        between runs unlike a trimmed RMS). Returns the best run and the iterations spent.
+        """
+        cfg = self.config
+        best = None if first is None else (
+            first.converged, self._consensus(segments, reference, current, first, limit), first)
+        iterations = 0
+        for rotation in rotation_candidates(reference, current, guess[2],
+                                            cfg.restart_max_rotation, cfg.restart_candidates):
+            run = self._run(segments, reference.bearing_index, current,
+                            np.array([guess[0], guess[1], rotation]))
+            if run is None:
+                continue
+            iterations += run.iterations
+            if abs(se2.wrap_angle(run.estimate[2] - rotation)) > cfg.restart_max_rotation:
+                continue  # drifted far from its seed: not a local refinement of it
+            score = (run.converged, self._consensus(segments, reference, current, run, limit), run)
+            if best is None or score[:2] > best[:2]:
+                best = score
+        return (None if best is None else best[2]), iterations
+
+    def _run(self, segments: ReferenceSegments, index: BearingIndex, current: ScanPoints,
+             guess: se2.Pose) -> _Run | None:
+        """Iterate from ``guess`` until the step is small, a pairing repeats, or the cap."""
+        cfg = self.config
+        found, estimate, converged, iterations, kept, moved, line, segment, delta = iterate(
+            segments.table, index.sorted_points, index.bearings, index.directions,
+            index.order, current.points, np.asarray(guess, dtype=float), cfg.max_iterations,
+            cfg.min_correspondences, cfg.coarse_keep_fraction,
+            cfg.coarse_correspondence_distance, cfg.coarse_step,
+            cfg.max_correspondence_distance, cfg.min_keep_fraction, cfg.max_keep_fraction,
+            cfg.trim_sigma, cfg.convergence_translation, cfg.convergence_rotation)
+        if not found:
+            return None
+        pairs = Pairs(moved, line[:, :2], segment >> 1, line[:, 2])
+        # The kept pairs moved by the last step: their residuals at the final estimate.
+        moved = se2.transform_points(delta, pairs.points)
+        residuals = (pairs.normals[:, 0] * moved[:, 0] + pairs.normals[:, 1] * moved[:, 1]
+                     - pairs.offset)
+        return _Run(estimate, bool(converged), int(iterations), pairs, moved, residuals)
+
+    def _consensus(self, segments: ReferenceSegments, reference: ScanPoints,
+                   current: ScanPoints, run: _Run, limit: float) -> float:
+        """Fraction of current points within ``limit`` of their reference line."""
+        moved = se2.transform_points(run.estimate, current.points)
+        index, _, line = pair_with_segments(segments, reference.bearing_index, moved,
+                                            self.config.max_correspondence_distance)
+        pts = moved[index]
+        residuals = line[:, 0] * pts[:, 0] + line[:, 1] * pts[:, 1] - line[:, 2]
+        return float(np.count_nonzero(np.abs(residuals) < limit)
+                     / len(current))
+
+
+DIRECTION_BINS = 180
+"""Bins of the surface-direction histogram over [0, pi) (1 deg each)."""
+
+FLAT_CURVATURE = 0.05
+"""Points with a larger curvature (l1 / (l1 + l2)) have no reliable surface direction."""
+
+
+def direction_histogram(scan: ScanPoints) -> np.ndarray:
+    """Histogram of surface directions (normal angle mod pi), cached per scan.
+
+    Each flat point votes with its range, roughly the length of surface its beam
+    covers, so near clutter does not outvote distant walls. Smoothed by (1, 2, 1) / 4.
+    """
+    cached = scan.cache.get('plicp_directions')
+    if cached is not None:
+        return cached
+    surface = estimate_normals(scan)
+    angle = np.arctan2(surface.normals[:, 1], surface.normals[:, 0]) % np.pi
+    bins = np.minimum((angle * (DIRECTION_BINS / np.pi)).astype(int), DIRECTION_BINS - 1)
+    weight = scan.ranges * (surface.valid & (surface.curvature < FLAT_CURVATURE))
+    hist = np.bincount(bins, weight, minlength=DIRECTION_BINS)
+    hist = 0.25 * (np.roll(hist, 1) + 2.0 * hist + np.roll(hist, -1))
+    scan.cache['plicp_directions'] = hist
+    return hist
+
+
+def rotation_candidates(reference: ScanPoints, current: ScanPoints, guess: float,
+                        window: float, count: int) -> list[float]:
+    """Rotations within ``window`` of ``guess`` where the scans' surface directions agree.
+
+    The circular cross-correlation of the two direction histograms (Weiss, Wetzler
+    and von Puttkamer, "Keeping track of position and orientation of moving indoor
+    systems by correlation of range-finder scans", IROS 1994) peaks at rotations that
+    bring the current walls parallel to the reference walls; its ``count`` highest
+    local maxima (1 deg resolution, skipping those within 2 deg of the guess, which
+    was already tried) seed PL-ICP again when the first run failed.
+    """
+    if count <= 0 or len(reference) < 3 or len(current) < 3:
+        return []
+    ref_hist, cur_hist = direction_histogram(reference), direction_histogram(current)
+    correlation = np.fft.irfft(np.fft.rfft(ref_hist) * np.conj(np.fft.rfft(cur_hist)),
+                               DIRECTION_BINS)
+    width = np.pi / DIRECTION_BINS
+    offset = (np.arange(DIRECTION_BINS) * width - guess + 0.5 * np.pi) % np.pi - 0.5 * np.pi
+    peak = ((correlation >= np.roll(correlation, 1)) & (correlation > np.roll(correlation, -1))
+            & (np.abs(offset) <= window) & (np.abs(offset) > 2.0 * width)
+            & (correlation > 0.0))
+    order = np.flatnonzero(peak)[np.argsort(-correlation[peak])]
+    return [float(se2.wrap_angle(guess + offset[k])) for k in order[:count]]

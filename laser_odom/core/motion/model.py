@@ -1,0 +1,129 @@
+"""Motion prediction: the initial guess of each match.
+
+The constant-velocity model assumes the robot keeps the twist of its last step; an
+external prior (wheel odometry motion, IMU yaw change) replaces it when configured
+and available. The guess only seeds the matcher; a good one keeps ICP-type methods
+inside their basin of convergence.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+import statistics
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.configuration.pipeline import MotionConfig
+
+
+MIN_VELOCITY_DT = 0.005
+"""Shortest scan interval [s] from which a velocity is estimated."""
+
+
+PERIOD_WINDOW = 25
+"""Recent scan intervals from which the nominal sensor period is taken."""
+
+JITTER_FRACTION = 0.1
+"""Share of implausibly short intervals above which scan stamps count as jittery."""
+
+
+class MotionModel:
+    """Predicts the motion between scans from the last velocity or an external prior."""
+
+    def __init__(self, config: MotionConfig) -> None:
+        """Create the model; it starts at rest."""
+        self.config = config
+        self.reset()
+        self.forget_intervals()
+
+    def reset(self) -> None:
+        """Forget the velocity (the robot is assumed at rest)."""
+        self.velocity = np.zeros(3)
+
+    def forget_intervals(self) -> None:
+        """Forget the sensor period too (a new sensor or a restarted clock)."""
+        self.intervals: deque[float] = deque(maxlen=PERIOD_WINDOW)
+        self._period: tuple[float, float, bool] | None = None
+
+    def _period_statistics(self) -> tuple[float, float, bool]:
+        """Return the median and mean of the recent intervals and whether they are bursty.
+
+        Computed once per new interval: a scan asks for its effective interval several
+        times (prediction, de-skewing, the rate check, the velocity update).
+        """
+        if self._period is None:  # in Python: numpy's overhead on a few dozen floats is larger
+            median = statistics.median(self.intervals)
+            short = sum(1 for dt in self.intervals if dt < 0.5 * median)
+            bursty = short / len(self.intervals) > JITTER_FRACTION
+            self._period = (median, statistics.fmean(self.intervals), bursty)
+        return self._period
+
+    def effective_dt(self, dt: float) -> float:
+        """Return the interval the motion is scaled by.
+
+        A sensor's true stamps give intervals of one period, or a few when scans are
+        dropped - never much less than one. Logger-stamped logs (the Intel lab log) are
+        bursty instead: a scan stamped 10 ms after its predecessor by a 5 Hz sensor was
+        taken a whole period later, and the next one looks 0.39 s late. When more than
+        ``JITTER_FRACTION`` of the recent intervals are shorter than half their median,
+        the single interval says nothing and the mean interval (the true scan rate)
+        is used; a lone short interval in a regular stream is taken as the median.
+        """
+        if len(self.intervals) < 5:
+            return dt
+        median, mean, bursty = self._period_statistics()
+        if bursty:
+            return mean
+        return median if dt < 0.5 * median else dt
+
+    def gap_exceeded(self, dt: float, prior_step: se2.Pose | None = None) -> bool:
+        """Tell whether ``dt`` is longer than ``max_scan_gap``: no prediction over it.
+
+        Wheel odometry (``prior: odom``) measures the motion over any gap, so a gap only
+        drops an extrapolation: the constant velocity (and the IMU prior's translation).
+        """
+        return dt > self.config.max_scan_gap and not self._measured(prior_step)
+
+    def _measured(self, prior_step: se2.Pose | None) -> bool:
+        """Tell whether the prediction is a measured wheel-odometry step."""
+        return (self.config.prior == 'odom' and prior_step is not None
+                and se2.is_finite_pose(prior_step))
+
+    def predict(self, dt: float, prior_step: se2.Pose | None = None,
+                prior_yaw: float | None = None,
+                counters: Counter[str] | None = None) -> se2.Pose:
+        """Return the predicted motion (base frame of the previous scan) over ``dt``."""
+        cfg = self.config
+        if cfg.prior == 'none' or self.gap_exceeded(dt, prior_step):
+            return se2.pose()
+        constant_velocity = self.velocity * self.effective_dt(dt)
+        if cfg.prior == 'odom':
+            if prior_step is not None and se2.is_finite_pose(prior_step):
+                return np.array(prior_step, dtype=float)
+            if counters is not None:
+                counters['prior_missing'] += 1
+        elif cfg.prior == 'imu':
+            if prior_yaw is not None and np.isfinite(prior_yaw):
+                return np.array([constant_velocity[0], constant_velocity[1], prior_yaw])
+            if counters is not None:
+                counters['prior_missing'] += 1
+        return constant_velocity
+
+    def update(self, step: se2.Pose, dt: float) -> None:
+        """Record the estimated motion of the last step.
+
+        A step over a gap longer than ``max_scan_gap`` (or a non-finite one) leaves the
+        robot assumed at rest. The step is turned into a velocity over the
+        :meth:`effective_dt`, so near-coincident stamps (millimetres of motion over a
+        microsecond would be km/s) do not make the next prediction run away.
+        """
+        if dt > 0.0:
+            self.intervals.append(dt)
+            self._period = None
+        if not (0.0 < dt <= self.config.max_scan_gap and se2.is_finite_pose(step)):
+            self.velocity = np.zeros(3)
+            return
+        effective = self.effective_dt(dt)
+        if effective >= MIN_VELOCITY_DT:
+            self.velocity = np.array(step, dtype=float) / effective

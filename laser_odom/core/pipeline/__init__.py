@@ -1,0 +1,10 @@
+"""The odometry pipeline on top: one scan's path, and what drives it.
+
+``odometry`` (:class:`OdometryPipeline`: validate, predict, register, judge, integrate),
+``announce`` (the counted, throttled lines that say why), ``runner`` (the pipeline over
+recorded scans: replay, benchmark, tests) and ``warmup`` (compile the kernels before
+the first scan).
+
+May import: every layer below it (``registration`` and down, ``simulation`` for the
+warm-up's drive).
+"""

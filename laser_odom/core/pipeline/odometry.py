@@ -1,0 +1,422 @@
+"""The scan-to-scan odometry pipeline that the node and the replay harness both drive.
+
+Per scan: preprocess (validate, convert to base-frame points), predict the motion
+(constant velocity or an external prior) and decide whether that prediction can be
+trusted, register against the reference scan (the matcher from the prediction, the
+global search when the prediction or the match fails), judge the match (acceptance,
+ambiguity, degeneracy), then integrate pose, twist and covariance.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from dataclasses import dataclass
+import time
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
+from laser_odom.core.motion.model import MotionModel
+from laser_odom.core.pipeline.announce import say_why
+from laser_odom.core.preprocess.deskew import deskew_change, DESKEW_EVENTS, deskewed, twist_of_step
+from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
+from laser_odom.core.registration.acceptance import judge_match
+from laser_odom.core.registration.map_registrar import JudgedMatch, MAP_EVENTS, MapRegistrar
+from laser_odom.core.registration.registrar import EVIDENCE_EVENTS, Registrar, SEARCH_TRIGGERS
+from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
+from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, step_error
+
+TIMING_WINDOW = 1000
+"""Number of recent per-scan processing times kept for statistics."""
+
+OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
+"""Counters of what became of the scans; every other counter is a skip reason, a
+rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
+
+EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
+    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + EVIDENCE_EVENTS + tuple(
+    DESKEW_EVENTS) + MAP_EVENTS
+"""Counters of events that do not skip the scan: a missing or dropped prior, a clock
+jump, an ambiguous match, each reason the global search ran, sweep timing that was
+repaired or ignored, and what the local map did."""
+
+DESKEW_TOLERANCE = 0.02
+"""Match again when the measured twist would move the de-skewed points more than this
+[m] (a bound over the sweep; below it the twist differs by less than matching noise)."""
+
+
+@dataclass
+class OdometryEstimate:
+    """Odometry after one scan: pose of the base in the odom frame, and its twist.
+
+    ``twist`` is ``[vx, vy, wz]`` in the base frame (REP-105); covariances are 3x3 in
+    ``[x, y, yaw]``. ``status`` is ``initialized``, ``matched``, ``degenerate`` or
+    ``rejected``; ``processing_time`` is seconds spent on this scan.
+    """
+
+    stamp_ns: int
+    pose: np.ndarray
+    pose_covariance: np.ndarray
+    twist: np.ndarray
+    twist_covariance: np.ndarray
+    status: str
+    match: MatchResult | None = None
+    processing_time: float = 0.0
+    scan_points: np.ndarray | None = None
+    """The scan's points in the base frame (N, 2), as matched."""
+    step_covariance: np.ndarray | None = None
+    """Covariance (3x3) of the match this pose comes from (the step from the previous
+    scan when matching scan to scan), before it is divided by dt^2 into the twist's;
+    None for an ``initialized`` scan."""
+
+
+class OdometryPipeline:
+    """Scan-to-scan (or scan-to-keyframe) laser odometry, independent of ROS."""
+
+    def __init__(self, config: PipelineConfig | None = None,
+                 matcher: ScanMatcher | None = None, events: EventLog | None = None) -> None:
+        """Create the pipeline; the matcher defaults to ``config.matcher``.
+
+        ``events`` receives counted, throttled warnings about bad input and failed
+        matches (default: the ``laser_odom`` Python logger).
+        """
+        self.config = config if config is not None else PipelineConfig()
+        if matcher is None:
+            matcher = matcher_class(self.config.matcher)(self.config.resolved_matcher_config())
+        self.matcher = matcher
+        self.events = events if events is not None else EventLog()
+        self.counters: Counter[str] = self.events.counters
+        self.validator = ScanValidator(self.config.scan, self.config.mounting, self.events)
+        self.motion = MotionModel(self.config.motion)
+        self.registrar = Registrar(self.events)
+        self.processing_times: deque[float] = deque(maxlen=TIMING_WINDOW)
+        self.map_registrar = self._map_registrar(self.config)
+        self.reset()
+
+    def _map_registrar(self, config: PipelineConfig) -> MapRegistrar | None:
+        """Return a new local map when scans are matched against one, else None."""
+        if config.local_map.reference != 'local_map':
+            return None
+        return MapRegistrar(config, self.events)
+
+    def reset(self, pose: se2.Pose | None = None,
+              covariance: np.ndarray | None = None) -> None:
+        """Restart integration from ``pose`` (default: the origin), forgetting the reference."""
+        self.pose = se2.pose() if pose is None else np.array(pose, dtype=float)
+        self.pose_covariance = np.zeros((3, 3)) if covariance is None else np.array(covariance)
+        self.keyframe: ScanPoints | None = None
+        self.keyframe_deskewed = False
+        self.keyframe_prepared = False
+        self.keyframe_pose = self.pose.copy()
+        self.uncertainty = PoseUncertainty.at(self.pose_covariance)
+        self.keyframe_uncertainty = self.uncertainty
+        self.scans_after_keyframe = 0
+        self.last_stamp_ns: int | None = None
+        self.untrusted = 'reset'
+        self.motion.reset()
+        if self.map_registrar is not None:
+            self.map_registrar.reset()
+
+    def set_matcher(self, matcher: ScanMatcher) -> None:
+        """Switch the matcher; the pose and the reference scan are kept."""
+        if matcher.name != self.matcher.name:
+            self.registrar.usual.clear()
+        self.matcher = matcher
+        self.config.matcher = matcher.name
+        self.config.matcher_config = matcher.config
+
+    def configure(self, config: PipelineConfig) -> None:
+        """Apply new settings from the next scan on, keeping the pose (live reconfiguration).
+
+        A new matcher or matcher setting replaces the matcher (:meth:`set_matcher`). A new
+        laser mounting changes every base-frame point, so the reference scan is dropped and
+        integration restarts from the current pose. A new ``reference`` or local-map
+        setting starts the map again from the last scan (:meth:`_switch_reference`);
+        other settings keep the reference.
+        """
+        mounting_changed = config.mounting != self.config.mounting
+        map_changed = config.local_map != self.config.local_map
+        matcher_config = config.resolved_matcher_config()
+        if config.matcher != self.matcher.name or matcher_config != self.matcher.config:
+            matcher = matcher_class(config.matcher)(matcher_config)
+        else:
+            matcher = self.matcher
+        self.config = config
+        self.set_matcher(matcher)
+        self.validator = ScanValidator(config.scan, config.mounting, self.events)
+        self.motion.config = config.motion
+        if mounting_changed:
+            self.map_registrar = self._map_registrar(config)
+            self.reset(self.pose, self.pose_covariance)
+        elif map_changed:
+            self._switch_reference(config)
+
+    def _switch_reference(self, config: PipelineConfig) -> None:
+        """Match against a new local map, or the previous scan, from the next scan on.
+
+        The last scan, at the current pose, is the first scan of the new map, or the
+        reference scan when the map is left; the motion to the next scan is matched
+        as usual. Without such a scan (none yet, or a keyframe behind the current
+        pose) integration restarts from the current pose.
+        """
+        if self.map_registrar is not None:  # the map's previous scan: at the current pose
+            last = self.map_registrar.map.previous_scan
+            at_pose = last is not None
+        else:
+            last = self.keyframe
+            at_pose = last is not None and np.array_equal(self.keyframe_pose, self.pose)
+        self.map_registrar = self._map_registrar(config)
+        if not at_pose:
+            self.reset(self.pose, self.pose_covariance)
+        elif self.map_registrar is not None:
+            self.map_registrar.restart(last, self.pose)
+            self.keyframe_prepared = False
+        else:
+            self._set_keyframe(last)
+
+    def process(self, scan: LaserScan, prior_step: se2.Pose | None = None,
+                prior_yaw: float | None = None) -> OdometryEstimate | None:
+        """Process one scan; return the new odometry, or None if the scan was skipped.
+
+        ``prior_step`` (wheel odometry motion since the previous processed scan) and
+        ``prior_yaw`` (IMU yaw change) are used when the ``prior`` parameter asks for
+        them; when missing, the constant-velocity prediction stands in.
+        """
+        started = time.perf_counter()
+        self.counters['scans_in'] += 1
+        scan = self.validator.thin(scan)
+        current, reason = self.validator.check(scan)
+        if current is None:
+            self.events.warn(reason, f'scan at t={scan.stamp_ns * 1e-9:.3f} skipped: '
+                             f'{REJECTIONS[reason]}')
+            return None
+        dt = self._elapsed(scan.stamp_ns)
+        if dt is None:
+            return None
+        if self.map_registrar is not None:
+            self.map_registrar.observe_scan(scan)
+        if self.keyframe is None:
+            estimate = self._initialise(current, scan.stamp_ns)
+        else:
+            untrusted = self._distrust(dt, scan.stamp_ns, prior_step)
+            guess_step = self.motion.predict(dt, prior_step, prior_yaw, self.counters)
+            estimate = self._register(current, guess_step, dt, scan.stamp_ns, untrusted)
+        estimate.processing_time = time.perf_counter() - started
+        self.processing_times.append(estimate.processing_time)
+        self.counters['processed'] += 1
+        self.counters[estimate.status] += 1
+        return estimate
+
+    def prepare_next(self) -> float:
+        """Do a new keyframe's reference-only work now; return the seconds it took.
+
+        Call after the result of :meth:`process` is out (published, written): matching
+        against a new keyframe needs structures that only its role as the reference
+        uses (:meth:`.ScanMatcher.prepare_reference`), and building them here keeps
+        them off the receipt-to-publish path. The result never depends on this call;
+        without it the next match builds the same on demand. The time counts in the
+        scan's processing time. A keyframe that the next match will de-skew again (its
+        sweep follows its stamp) is replaced by then, so it is not prepared. Against a
+        local map, the scan waiting to join it joins now, and the view from the new pose
+        is rendered and prepared.
+        """
+        keyframe = self.keyframe
+        if (keyframe is None or self.keyframe_prepared
+                or (not self.keyframe_deskewed and keyframe.times is not None)):
+            return 0.0
+        started = time.perf_counter()
+        if self.map_registrar is not None:
+            keyframe = self._use_map_view()
+        self.matcher.prepare_reference(keyframe)
+        self.keyframe_prepared = True
+        elapsed = time.perf_counter() - started
+        if self.processing_times:
+            self.processing_times[-1] += elapsed
+        return elapsed
+
+    def _elapsed(self, stamp_ns: int) -> float | None:
+        """Return seconds since the last processed scan; handle repeats and time jumps."""
+        last = self.last_stamp_ns
+        if last is not None and stamp_ns == last:
+            self.events.warn('duplicate_stamp', f'scan at t={stamp_ns * 1e-9:.3f} skipped: '
+                             'same stamp as the previous scan')
+            return None
+        if last is not None and stamp_ns < last:
+            self.events.warn('time_jump_back', f'scan stamp t={stamp_ns * 1e-9:.3f} is '
+                             f'earlier than the previous t={last * 1e-9:.3f} (bag loop or '
+                             'restarted clock): odometry reset to the origin')
+            self.reset()
+            last = None
+        self.last_stamp_ns = stamp_ns
+        return 0.0 if last is None else (stamp_ns - last) * 1e-9
+
+    def _distrust(self, dt: float, stamp_ns: int, prior_step: se2.Pose | None = None) -> str:
+        """Return why this match's prediction cannot be trusted ('' when it can)."""
+        motion = self.config.motion
+        if motion.prior == 'none':
+            return 'no_prior'
+        if self.motion.gap_exceeded(dt, prior_step):
+            self.events.warn('scan_gap', f'{dt:.2f} s between the scans before '
+                             f't={stamp_ns * 1e-9:.3f}, longer than max_scan_gap '
+                             f'({motion.max_scan_gap:g} s): the motion prior is dropped')
+            return 'gap'
+        return self.untrusted
+
+    def _initialise(self, current: ScanPoints, stamp_ns: int) -> OdometryEstimate:
+        """Take the first scan (or the first after a reset) as the reference.
+
+        Its sweep motion is not known yet: it is de-skewed once the first match
+        measures the motion (:meth:`_deskew_again`).
+        """
+        self._set_keyframe(current, motion_known=False)
+        if self.map_registrar is not None:
+            self.map_registrar.restart(current, self.pose)
+        return OdometryEstimate(stamp_ns, self.pose.copy(), self.pose_covariance.copy(),
+                                np.zeros(3), np.eye(3) * 1e-6, 'initialized',
+                                scan_points=current.points)
+
+    def _register(self, current: ScanPoints, guess_step: se2.Pose, dt: float,
+                  stamp_ns: int, untrusted: str) -> OdometryEstimate:
+        """Match against the keyframe, judge the match and integrate the step."""
+        if self.map_registrar is not None:
+            self._use_map_view()
+        guess = se2.relative(self.keyframe_pose, se2.compose(self.pose, guess_step))
+        sweep_dt = self.motion.effective_dt(dt)
+        sweep_twist = twist_of_step(guess_step, sweep_dt)
+        current = deskewed(current, sweep_twist)
+        if not self.keyframe_deskewed and deskew_change(self.keyframe, sweep_twist) > 0.0:
+            self.keyframe = deskewed(self.keyframe, sweep_twist)  # its sweep: this step
+        if self.map_registrar is None:
+            registration = self.registrar.register(self.matcher, self.keyframe, current,
+                                                   guess, self.config, untrusted)
+            judged = JudgedMatch(self.keyframe, self.registrar, registration, judge_match(
+                registration, guess, self.config, current.length_scale), False)
+        else:
+            judged = self.map_registrar.register(self.matcher, self.registrar, self.keyframe,
+                                                 current, guess, self.config, untrusted)
+        say_why(self.events, judged.registration, judged.verdict, guess, stamp_ns,
+                self.config)
+        self.registrar.tell(judged.registration, judged.verdict.status,
+                            f't={stamp_ns * 1e-9:.3f}')
+        if current.times is not None and judged.verdict.status != 'rejected':
+            current, judged = self._deskew_again(current, sweep_dt, judged)
+        registration, verdict = judged.registration, judged.verdict
+        new_pose = se2.compose(self.keyframe_pose, verdict.pose)
+        step_covariance, model = step_error(judged.verdict.status, judged.verdict.covariance,
+                                            self.matcher.config, judged.from_map)
+        self.scans_after_keyframe += 1
+        self.uncertainty = self.keyframe_uncertainty.propagate(
+            self.keyframe_pose, verdict.pose, step_covariance, model,
+            self.scans_after_keyframe)
+        step = se2.relative(self.pose, new_pose)
+        self.pose, self.pose_covariance = new_pose, self.uncertainty.pose_covariance
+        if verdict.status == 'rejected':
+            # The prediction may be what was wrong: keeping its velocity would make every
+            # later (correct) match a large correction, and the odometry would run away
+            # on the prediction. The next match starts from rest, untrusted.
+            self.motion.reset()
+            self.untrusted = 'rejected'
+        elif registration.alternatives:
+            # Poses that fit alike (a featureless corridor): the step taken is one of
+            # them, not a measured motion, and a velocity from it would carry the pick on
+            # for good. The velocity stays that of the prediction (none if untrusted).
+            if untrusted:
+                self.motion.reset()
+            judged.registrar.accepted(registration.match)
+            self.untrusted = ''
+        else:
+            self.motion.update(step, dt)
+            judged.registrar.accepted(registration.match)
+            self.untrusted = ''
+        if self.map_registrar is not None:
+            self.keyframe_prepared = False  # the next match sees the map from the new pose
+            self.map_registrar.update(current, self.pose, judged, self.registrar, stamp_ns)
+        elif verdict.status == 'rejected' or self._keyframe_expired(verdict.pose):
+            # After a rejection the current scan becomes the reference at the predicted
+            # pose: a bad prediction then costs one step, instead of misleading every
+            # following match against the old reference.
+            self._set_keyframe(current, motion_known=verdict.status != 'rejected')
+        rate_dt = self.motion.effective_dt(dt)
+        twist = step / rate_dt if rate_dt > 0 else np.zeros(3)
+        twist_cov = (step_covariance / (rate_dt * rate_dt) if rate_dt > 0
+                     else step_covariance * 1e6)
+        return OdometryEstimate(stamp_ns, new_pose, self.pose_covariance.copy(), twist,
+                                twist_cov, verdict.status, registration.match,
+                                scan_points=current.points, step_covariance=step_covariance)
+
+    def _deskew_again(self, current: ScanPoints, sweep_dt: float, judged: JudgedMatch
+                      ) -> tuple[ScanPoints, JudgedMatch]:
+        """De-skew with the twist the match measured, and match again if it matters.
+
+        The prediction's twist was a guess (zero with ``prior: none``); the match tells
+        the motion over the step from the reference's stamp to the current one. That
+        interval holds the reference's sweep when scans are stamped at their first beam,
+        and the current sweep when stamped at the last; the other sweep is predicted
+        with the same twist (constant velocity). When the measured twist would move the
+        current points - or those of a reference not yet de-skewed with a measured twist
+        - by more than :data:`DESKEW_TOLERANCE`, they are de-skewed with it and matched
+        again from the first match, which is kept if the second is rejected.
+        """
+        verdict, reference = judged.verdict, judged.reference
+        step = se2.relative(self.pose, se2.compose(self.keyframe_pose, verdict.pose))
+        measured = twist_of_step(step, sweep_dt)
+        stale_reference = not self.keyframe_deskewed
+        self.keyframe_deskewed = True
+        reference_shift = deskew_change(self.keyframe, measured) if stale_reference else 0.0
+        if max(reference_shift, deskew_change(current, measured)) <= DESKEW_TOLERANCE:
+            return current, judged
+        if reference_shift > DESKEW_TOLERANCE:
+            self.keyframe = reference = deskewed(self.keyframe, measured)
+        again_points = deskewed(current, measured)
+        again = judged.registrar.register(self.matcher, reference, again_points,
+                                          verdict.pose, self.config, '')
+        second = judge_match(again, verdict.pose, self.config, again_points.length_scale)
+        if second.status == 'rejected':
+            return current, judged
+        return again_points, judged._replace(reference=reference, registration=again,
+                                             verdict=second)
+
+    def _use_map_view(self) -> ScanPoints:
+        """Make the local map seen from the current pose the reference of the next match.
+
+        Every match then starts from the previous pose, as scan to scan does: the
+        estimate is the step, and its covariance compounds like a step's.
+        """
+        view = self.map_registrar.view(self.pose, self.last_stamp_ns or 0)
+        if view is not self.keyframe:
+            self.keyframe = view
+            self.keyframe_prepared = False
+        self.keyframe_deskewed = True
+        self.keyframe_pose = self.pose.copy()
+        self.keyframe_uncertainty = self.uncertainty
+        self.scans_after_keyframe = 0
+        return view
+
+    def _keyframe_expired(self, keyframe_to_current: se2.Pose) -> bool:
+        """Tell whether the current scan becomes the new reference."""
+        kf = self.config.keyframes
+        if kf.keyframe_distance <= 0.0 and kf.keyframe_angle <= 0.0:
+            return True
+        moved = float(np.hypot(keyframe_to_current[0], keyframe_to_current[1]))
+        turned = abs(float(keyframe_to_current[2]))
+        return ((kf.keyframe_distance > 0.0 and moved >= kf.keyframe_distance)
+                or (kf.keyframe_angle > 0.0 and turned >= kf.keyframe_angle))
+
+    def _set_keyframe(self, current: ScanPoints, motion_known: bool = True) -> None:
+        """Make ``current`` the reference of the next matches.
+
+        ``motion_known`` says whether it was de-skewed with a measured motion (not the
+        first scan, not a rejected match). A scan whose sweep follows its stamp (stamped
+        at the first beam) was swept during the step to the next scan, so its motion is
+        only measured by the next match: that match de-skews it again.
+        """
+        self.keyframe = current
+        self.keyframe_prepared = False
+        sweeps_after_stamp = current.times is not None and float(np.median(current.times)) > 0
+        self.keyframe_deskewed = motion_known and not sweeps_after_stamp
+        self.keyframe_pose = self.pose.copy()
+        self.keyframe_uncertainty = self.uncertainty
+        self.scans_after_keyframe = 0

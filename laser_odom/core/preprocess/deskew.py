@@ -1,0 +1,189 @@
+"""De-skewing: a scan swept while the robot moved, moved to the instant of its stamp.
+
+A rotating lidar measures beam ``i`` at ``t_i = i * time_increment`` after the first
+beam, so during a turn the end of the sweep is seen from another pose than its start
+and the scan is bent. With the robot's twist ``xi = (v_x, v_y, omega)`` (base frame,
+constant over the short sweep), the base at time ``t`` is ``exp(t xi)`` relative to the
+base at the stamp, and a point ``p_i`` seen at ``t_i`` lies at
+
+    ``p_i' = exp(t_i xi) p_i = R(omega t_i) p_i + V(omega t_i) v t_i``
+
+in the base frame of the stamp, where ``V(theta) = [[sin th, cos th - 1],
+[1 - cos th, sin th]] / th`` is the left Jacobian of SO(2) (the SE(2) exponential; e.g.
+Barfoot, "State Estimation for Robotics", sec. 7.1.9). The stamp is the instant the
+published pose belongs to: the first beam's time (the ROS convention for
+``sensor_msgs/LaserScan``) or, with ``scan_stamp: last_beam``, the last beam's.
+
+The twist comes from the motion prediction and is then refined by the match itself
+(de-skew, match, re-estimate, de-skew again; see
+:class:`laser_odom.core.pipeline.odometry.OdometryPipeline`), as KISS-ICP does with the
+constant-velocity model (Vizzo et al., RA-L 2023, sec. III-A).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from laser_odom.core.events import EventLog
+from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
+
+SWEEP_TOLERANCE = 0.05
+"""A sweep may last up to this fraction longer than ``scan_time`` (driver rounding)."""
+
+MAX_SWEEP_WITHOUT_SCAN_TIME = 1.0
+"""Longest believable sweep [s] when ``scan_time`` cannot check it (a 1 Hz lidar)."""
+
+DESKEW_EVENTS = {
+    'time_increment_repaired': 'time_increment is 0 but deskew is on: taken as '
+                               'scan_time / beams per revolution',
+    'time_increment_reversed': 'time_increment is negative: the beams were taken from '
+                               'the last to the first (a reversed sweep)',
+    'time_increment_invalid': 'time_increment is NaN, inf or longer than the scan',
+    'sweep_timing_missing': 'deskew is on but the scan has neither time_increment nor '
+                            'scan_time: the scan is not de-skewed',
+}
+"""Counted (and said once) when a scan's sweep timing is repaired or ignored."""
+
+
+def beam_times(count: int, time_increment: float, stamp_at_last: bool) -> np.ndarray:
+    """Return each beam's time [s] relative to the scan stamp.
+
+    A negative ``time_increment`` is a sweep from the last beam to the first. The stamp
+    belongs to the first beam measured, or with ``stamp_at_last`` to the last.
+    """
+    step = abs(time_increment)
+    order = np.arange(count) if time_increment >= 0.0 else np.arange(count)[::-1]
+    times = order * step
+    if stamp_at_last:
+        times = times - (count - 1) * step
+    return times
+
+
+def sweep_times(scan: LaserScan, count: int, mode: str, stamp_at_last: bool,
+                events: EventLog, last_valid: float | None = None) -> np.ndarray | None:
+    """Return the beam times of a scan for de-skewing, or None when it is not de-skewed.
+
+    ``mode`` is the ``deskew`` parameter: ``off``; ``auto`` de-skews the scans that
+    carry a non-zero ``time_increment``; ``on`` also repairs a zero one from
+    ``scan_time`` (one revolution per scan). Timing that cannot be right - NaN, or a
+    sweep longer than the scan period - is counted and said once; the scan then takes
+    ``last_valid``, the ``time_increment`` of the last scan of the same beam count
+    that had a valid one (the same sensor: leaving one scan bent among straight ones
+    would bias the two matches it takes part in), or is not de-skewed without one.
+    """
+    if mode == 'off':
+        return None
+    increment, scan_time = scan.time_increment, scan.scan_time
+    if not isinstance(increment, (int, float)) or not math.isfinite(increment):
+        return _invalid(events, '', count, last_valid, stamp_at_last)
+    period = float(scan_time) if isinstance(scan_time, (int, float)) and math.isfinite(
+        scan_time) and scan_time > 0.0 else 0.0
+    if increment == 0.0:
+        if mode != 'on':
+            return None
+        if period == 0.0:
+            events.warn('sweep_timing_missing', DESKEW_EVENTS['sweep_timing_missing'],
+                        once=True)
+            return None
+        increment = period * abs(scan.angle_increment) / (2.0 * math.pi)
+        events.warn('time_increment_repaired', DESKEW_EVENTS['time_increment_repaired'],
+                    once=True)
+    sweep = abs(increment) * (count - 1)
+    limit = period * (1.0 + SWEEP_TOLERANCE) if period > 0.0 else MAX_SWEEP_WITHOUT_SCAN_TIME
+    if sweep > limit:
+        return _invalid(events, f' (sweep {sweep:.3g} s, scan_time {period:.3g} s)', count,
+                        last_valid, stamp_at_last)
+    if increment < 0.0:
+        events.warn('time_increment_reversed', DESKEW_EVENTS['time_increment_reversed'],
+                    once=True)
+    return beam_times(count, increment, stamp_at_last)
+
+
+def twist_of_step(step: np.ndarray, dt: float) -> np.ndarray:
+    """Return the constant twist ``log(step) / dt`` that moves the base by ``step`` in ``dt``.
+
+    ``step`` is ``(x, y, theta)`` in the base frame at the start; the translation of
+    the logarithm is ``V(theta)^-1 (x, y)`` (the inverse of :func:`move_points`' V).
+    Zero for ``dt <= 0`` or a non-finite step.
+    """
+    step = np.asarray(step, dtype=float)
+    if not dt > 0.0 or not np.all(np.isfinite(step)):
+        return np.zeros(3)
+    theta = float(step[2])
+    if abs(theta) < 1e-6:
+        a, b = 1.0 - theta ** 2 / 6.0, theta / 2.0
+    else:
+        a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta
+    norm = a * a + b * b
+    vx = (a * step[0] + b * step[1]) / norm
+    vy = (-b * step[0] + a * step[1]) / norm
+    return np.array([vx, vy, theta]) / dt
+
+
+def _invalid(events: EventLog, detail: str, count: int, last_valid: float | None,
+             stamp_at_last: bool) -> np.ndarray | None:
+    """Count and say (once) unusable timing; fall back on the last valid increment."""
+    fallback = ('; the last valid time_increment is used' if last_valid is not None else
+                '; the scan is not de-skewed')
+    events.warn('time_increment_invalid', DESKEW_EVENTS['time_increment_invalid'] + detail
+                + fallback, once=True)
+    return None if last_valid is None else beam_times(count, last_valid, stamp_at_last)
+
+
+def move_points(points: np.ndarray, times: np.ndarray, twist: np.ndarray) -> np.ndarray:
+    """Return ``exp(t_i xi) p_i`` for every point: each moved to the stamp's base frame.
+
+    ``points`` (N, 2) and ``times`` (N,) [s]; ``twist`` is ``(v_x, v_y, omega)`` in the
+    base frame [m/s, rad/s]. Vectorised; the series of ``V`` is used near ``theta = 0``.
+    """
+    theta = twist[2] * times
+    c, s = np.cos(theta), np.sin(theta)
+    small = np.abs(theta) < 1e-6
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta ** 2 / 6.0, s / safe)          # sin(th) / th
+    b = np.where(small, theta / 2.0, (1.0 - c) / safe)             # (1 - cos th) / th
+    vx, vy = twist[0] * times, twist[1] * times
+    x, y = points[:, 0], points[:, 1]
+    return np.column_stack((c * x - s * y + a * vx - b * vy,
+                            s * x + c * y + b * vx + a * vy))
+
+
+def sweep_shift(times: np.ndarray, ranges: np.ndarray, twist_change: np.ndarray) -> float:
+    """Return a bound [m] on how far points move when the twist changes by ``twist_change``.
+
+    Over the longest beam time a point at range ``r`` moves by at most
+    ``|t| (|dv| + |domega| r)`` more: the test of whether re-de-skewing is worth a
+    second match.
+    """
+    if times.size == 0:
+        return 0.0
+    t = float(np.max(np.abs(times)))
+    r = float(np.max(ranges)) if ranges.size else 0.0
+    return t * (math.hypot(twist_change[0], twist_change[1]) + abs(twist_change[2]) * r)
+
+
+def deskewed(scan: ScanPoints, twist: np.ndarray) -> ScanPoints:
+    """Return the scan's points moved to the stamp by ``twist``.
+
+    The result is a new object: caches of normals and search indices belong to the old
+    points. A scan without beam times is returned as it is.
+    """
+    if scan.times is None:
+        return scan
+    measured = scan.points if scan.measured is None else scan.measured
+    with np.errstate(over='ignore', invalid='ignore'):
+        moved = move_points(measured, scan.times, np.asarray(twist, dtype=float))
+    if not np.all(np.isfinite(moved)):  # an absurd twist: keep the scan as measured
+        moved = measured
+    return ScanPoints(moved, scan.beam_index, scan.ranges, scan.stamp_ns, times=scan.times,
+                      measured=measured, twist=np.asarray(twist, dtype=float))
+
+
+def deskew_change(scan: ScanPoints, twist: np.ndarray) -> float:
+    """Return how far [m, bound] de-skewing with ``twist`` instead would move the points."""
+    if scan.times is None:
+        return 0.0
+    used = np.zeros(3) if scan.twist is None else scan.twist
+    return sweep_shift(scan.times, scan.ranges, np.asarray(twist, dtype=float) - used)

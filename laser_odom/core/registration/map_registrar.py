@@ -1,0 +1,156 @@
+"""Registration against the local map, with the previous scan as the second opinion.
+
+With ``reference: local_map`` each scan is matched against the local map seen from
+the previous pose (:mod:`laser_odom.core.registration.local_map.reference`). The map is the better
+reference as long as it describes the scene; where it does not (the scene changed,
+the map went wrong, the scan sees what the map dropped) the previous scan still does.
+Both share the previous pose's frame, so one guess serves both and the result is the
+step either way. A scan that disagrees with the map and with the previous scan is
+evidence that the step failed: the global search runs against both.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from laser_odom.core import se2
+from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.events import EventLog
+from laser_odom.core.matchers import ScanMatcher
+from laser_odom.core.registration.acceptance import judge_match, MatchVerdict
+from laser_odom.core.registration.local_map.reference import fits_usual, MapReference, MAX_REFUSED
+from laser_odom.core.registration.registrar import Registrar, Registration
+from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
+
+MAP_EVENTS = ('map_fallback', 'map_restarted')
+"""Counted events of map matching: a step taken from the previous scan because it
+fitted better than the map (``map_fallback``), the map started again from the current
+scan (``map_restarted``: after a rejected match, or scans in a row fitting it poorly)."""
+
+STATUS_RANK = {'rejected': 0, 'degenerate': 1, 'matched': 2}
+"""Order of the verdicts, worst first."""
+
+
+class JudgedMatch(NamedTuple):
+    """A judged match, the reference it was made against and the registrar that made it."""
+
+    reference: ScanPoints
+    registrar: Registrar
+    registration: Registration
+    verdict: MatchVerdict
+    from_map: bool = True
+    """Whether it was made against the map (False: against the previous scan)."""
+
+
+class MapRegistrar:
+    """Matches scans against the local map and keeps the map up to date."""
+
+    def __init__(self, config: PipelineConfig, events: EventLog) -> None:
+        """Create an empty map from ``config``; events are counted and said to ``events``."""
+        self.map = MapReference(config.local_map, config.mounting.mounting())
+        self.scan_registrar = Registrar(events)
+        self.events = events
+
+    def reset(self) -> None:
+        """Forget the map and the previous scan."""
+        self.map.reset()
+
+    def observe_scan(self, scan: LaserScan) -> None:
+        """Take the view's bearing bin and reach from the laser (:class:`MapReference`)."""
+        self.map.observe_scan(scan)
+
+    def restart(self, current: ScanPoints, pose: se2.Pose) -> None:
+        """Start the map from ``current`` at ``pose`` (the first scan after a reset)."""
+        self.map.restart(current, pose)
+
+    def view(self, pose: se2.Pose, stamp_ns: int) -> ScanPoints:
+        """Return the map seen from ``pose``, the reference of the next match."""
+        return self.map.view(pose, stamp_ns)
+
+    def register(self, matcher: ScanMatcher, registrar: Registrar, view: ScanPoints,
+                 current: ScanPoints, guess: se2.Pose, config: PipelineConfig,
+                 untrusted: str) -> JudgedMatch:
+        """Match ``current`` against the map's ``view``, or the previous scan if better.
+
+        From a trusted prediction the match against the map stands when it is clean
+        (:func:`clean_match`); else the match against the previous scan when that is
+        clean. Only when neither is do the global search and the full registration
+        (:meth:`.Registrar.register`) run against both, and the better judged result
+        (:func:`match_rank`; the map's on a tie) is taken. ``registrar`` is the one
+        that matches against the map (it keeps the usual fit of map matches); a
+        result taken from the previous scan is counted as ``map_fallback``.
+        """
+        previous = self.map.previous_scan
+        scale = current.length_scale
+        local = None
+        if not untrusted:
+            registration, passed = registrar.try_local(matcher, view, current, guess, config)
+            local = registration.match
+            if passed:
+                verdict = judge_match(registration, guess, config, scale)
+                if clean_match(registration, verdict):
+                    return JudgedMatch(view, registrar, registration, verdict)
+            if previous is not None:
+                registration, passed = self.scan_registrar.try_local(
+                    matcher, previous, current, guess, config)
+                if passed:
+                    verdict = judge_match(registration, guess, config, scale)
+                    if clean_match(registration, verdict):
+                        return self._fallback(previous, registration, verdict)
+        registration = registrar.register(matcher, view, current, guess, config, untrusted,
+                                          local)
+        verdict = judge_match(registration, guess, config, scale)
+        if previous is None or clean_match(registration, verdict):
+            return JudgedMatch(view, registrar, registration, verdict)
+        second = self.scan_registrar.register(matcher, previous, current, guess, config,
+                                              untrusted)
+        second_verdict = judge_match(second, guess, config, scale)
+        if match_rank(second, second_verdict) > match_rank(registration, verdict):
+            return self._fallback(previous, second, second_verdict)
+        return JudgedMatch(view, registrar, registration, verdict)
+
+    def update(self, current: ScanPoints, pose: se2.Pose, judged: JudgedMatch,
+               registrar: Registrar, stamp_ns: int) -> None:
+        """Let a trusted scan join the map at ``pose``; restart the map after a rejection.
+
+        A match against the map that was accepted, not ambiguous, and fits about as
+        well as usual (:func:`.local_map.reference.fits_usual`) places the scan well enough
+        to build on (a degenerate one too: its weak direction took the prediction, and
+        the map, featureless along it, stays consistent). A rejected match restarts the
+        map from the current scan at the pose the pipeline took.
+        """
+        if judged.verdict.status == 'rejected':
+            self.map.restart(current, pose)
+            self.events.count('map_restarted')
+            return
+        # The step is known: the registrar that did not make it has not lost track.
+        (self.scan_registrar if judged.from_map else registrar).settled()
+        usual = judged.registrar.usual
+        fits = (judged.from_map and not judged.registration.alternatives
+                and fits_usual(judged.registration.match, usual.residual(),
+                               usual.inlier_ratio()))
+        if self.map.offer(current, pose, fits) == 'restarted':
+            self.events.warn('map_restarted', f'the local map restarted at '
+                             f't={stamp_ns * 1e-9:.3f}: {MAX_REFUSED} scans in a row fitted '
+                             'it poorly (the scene changed, or the map went wrong)')
+
+    def _fallback(self, previous: ScanPoints, registration: Registration,
+                  verdict: MatchVerdict) -> JudgedMatch:
+        """Return a match against the previous scan, counted as ``map_fallback``."""
+        self.events.count('map_fallback')
+        return JudgedMatch(previous, self.scan_registrar, registration, verdict, False)
+
+
+def clean_match(registration: Registration, verdict: MatchVerdict) -> bool:
+    """Tell whether a match is accepted with nothing to doubt.
+
+    Matched (not degenerate, not rejected), and neither the match from the prediction
+    failed nor did another pose fit alike.
+    """
+    return (verdict.status == 'matched' and not registration.local_failure
+            and not registration.alternatives)
+
+
+def match_rank(registration: Registration, verdict: MatchVerdict) -> tuple[int, bool]:
+    """Return how good a judged match is: its status, then whether it is clean."""
+    return STATUS_RANK[verdict.status], clean_match(registration, verdict)
