@@ -5,6 +5,7 @@ whole file stays well under a minute on two loaded cores.
 """
 
 import math
+import os
 from pathlib import Path
 import subprocess
 import sys
@@ -178,6 +179,21 @@ def test_two_processes_share_one_sqlite_study(sim, tmp_path):
     assert len(trials) == 6
     workers = {t.user_attrs['worker'] for t in trials}
     assert {str(p.pid) for p in processes} == {w.rsplit(':', 1)[1] for w in workers}
+
+
+def test_jobs_run_the_queued_start_in_this_process_so_no_two_workers_take_it(sim, tmp_path):
+    """Run trial 0 here: SQLite cannot give one queued trial to just one of two processes."""
+    storage = f'sqlite:///{tmp_path / "jobs.db"}'
+    assert main([str(sim / 'bag'), '--matchers', 'plicp', '--trials', '3', '--jobs', '2',
+                 '--seed', '1', '--storage', storage, '--study-name', 'J', '--output',
+                 str(tmp_path / 't.yaml'), '--quiet']) == 0
+    trials = _study(storage, 'J-plicp').trials
+    assert [t.state.name for t in trials] == ['COMPLETE'] * 3
+    defaults = [t for t in trials if t.user_attrs.get('default')]
+    assert len(defaults) == 1 and defaults[0].number == 0
+    assert defaults[0].user_attrs['worker'].rsplit(':', 1)[1] == str(os.getpid())
+    others = {t.user_attrs['worker'] for t in trials[1:]}
+    assert len(others) == 2 and str(os.getpid()) not in {w.rsplit(':', 1)[1] for w in others}
 
 
 def test_jobs_run_parallel_processes_on_a_temporary_storage(sim, tmp_path, capsys,

@@ -226,21 +226,38 @@ def _worker_main(job: TuneJob, shares: dict[str, int], existing: dict[str, int],
     run_worker(job, open_storage(job.storage_url), shares, existing, totals, worker)
 
 
+def _waiting_trials(job: TuneJob, storage: Any, matcher: str) -> int:
+    """Return how many queued trials a matcher's study holds."""
+    import optuna
+    from optuna.trial import TrialState
+    study = optuna.load_study(study_name=study_name(job, matcher), storage=storage)
+    return len(study.get_trials(deepcopy=False, states=(TrialState.WAITING,)))
+
+
 def run_studies(job: TuneJob, storage: Any, trials: int, jobs: int) -> dict[str, int]:
     """Run ``trials`` more trials per matcher in ``jobs`` processes; return prior counts.
 
     With one job the trials run in this process (``storage`` may be in memory); with
-    more, ``job.storage_url`` must name a storage every process can open.
+    more, ``job.storage_url`` must name a storage every process can open. The queued
+    starting values (trial 0 of a new study) run in this process before the others
+    start: SQLite has no ``SELECT ... FOR UPDATE``, so two processes can both take one
+    queued trial and the second fails to report it ("Cannot tell a COMPLETE trial",
+    optuna issue 4621).
     """
     existing = prepare_studies(job, storage)
     totals = {matcher: trials for matcher in job.spaces}
     if jobs == 1:
         run_worker(job, storage, totals, existing, totals)
         return existing
+    queued = {m: min(_waiting_trials(job, storage, m), trials) for m in job.spaces}
+    if any(queued.values()):
+        run_worker(job, storage, queued, existing, totals)
+    remaining = {m: trials - queued[m] for m in job.spaces}
     context = multiprocessing.get_context('spawn')  # no inherited database connections
     processes = []
     for worker in range(jobs):
-        shares = {m: trials // jobs + (worker < trials % jobs) for m in job.spaces}
+        shares = {m: remaining[m] // jobs + (worker < remaining[m] % jobs)
+                  for m in job.spaces}
         process = context.Process(target=_worker_main, name=f'laser_odom_tune-{worker}',
                                   args=(job, shares, existing, totals, worker))
         process.start()
