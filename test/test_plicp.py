@@ -221,13 +221,14 @@ def test_one_pairing_sums_the_normal_equations_of_its_kept_pairs():
     index = reference.bearing_index
     current = reference.points + rng.normal(0.0, 0.02, reference.points.shape)
     estimate = se2.pose(0.03, -0.02, 0.01)
-    kept, moved, line, segment, big_m, small_m, signature, paired = pair_and_trim(
+    kept, moved, line, segment, weight, big_m, small_m, signature, paired = pair_and_trim(
         segments.table, index.sorted_points, index.bearings, index.directions, index.order,
-        current, estimate, 0.5, 0.8, 0.5, 1.0, 3.0, np.full(len(current), -1, np.int64))
+        current, estimate, 0.5, 0.8, 0.5, 1.0, 3.0, 0.0, np.full(len(current), -1, np.int64))
     moved_all = se2.transform_points(estimate, current)
     all_paired, _, all_lines = pair_with_segments(segments, index, moved_all, 0.5)
     assert paired == len(all_paired) == len(current)
     assert len(kept) == int(np.ceil(0.8 * paired))
+    assert np.array_equal(weight, np.ones(len(kept)))  # trimmed, not weighted
     assert np.allclose(moved, moved_all[kept])
     residuals = np.einsum('nd,nd->n', line[:, :2], moved) - line[:, 2]
     every = np.einsum('nd,nd->n', all_lines[:, :2], moved_all[all_paired]) - all_lines[:, 2]
@@ -239,12 +240,12 @@ def test_one_pairing_sums_the_normal_equations_of_its_kept_pairs():
     assert np.allclose(small_m, a.T @ line[:, 2], rtol=1e-12, atol=1e-12)
     again = pair_and_trim(
         segments.table, index.sorted_points, index.bearings, index.directions, index.order,
-        current, estimate, 0.5, 0.8, 0.5, 1.0, 3.0, np.full(len(current), -1, np.int64))
-    assert again[6] == signature  # the same pairing, the same hash
+        current, estimate, 0.5, 0.8, 0.5, 1.0, 3.0, 0.0, np.full(len(current), -1, np.int64))
+    assert again[7] == signature  # the same pairing, the same hash
     other = pair_and_trim(
         segments.table, index.sorted_points, index.bearings, index.directions, index.order,
-        current, estimate, 0.5, 0.7, 0.5, 1.0, 3.0, np.full(len(current), -1, np.int64))
-    assert other[6] != signature
+        current, estimate, 0.5, 0.7, 0.5, 1.0, 3.0, 0.0, np.full(len(current), -1, np.int64))
+    assert other[7] != signature
 
 
 def test_each_point_takes_the_segment_of_the_closer_joined_neighbour():
@@ -476,7 +477,7 @@ def test_a_nearly_unconstrained_translation_is_damped_towards_zero_not_flipped(a
 
 
 def _iterate(reference, current, guess, **overrides):
-    """Run the compiled PL-ICP loop with the default configuration and ``overrides``."""
+    """Run the compiled PL-ICP loop (trimming from the start, as against a scan)."""
     cfg = PlicpConfig(**overrides)
     segments = reference_segments(reference, cfg.max_beam_gap, cfg.max_segment_length,
                                   cfg.information_window)
@@ -487,7 +488,7 @@ def _iterate(reference, current, guess, **overrides):
         cfg.min_correspondences, cfg.coarse_keep_fraction,
         cfg.coarse_correspondence_distance, cfg.coarse_step,
         cfg.max_correspondence_distance, cfg.min_keep_fraction, cfg.max_keep_fraction,
-        cfg.trim_sigma, cfg.convergence_translation, cfg.convergence_rotation)
+        cfg.trim_sigma, 0.0, cfg.convergence_translation, cfg.convergence_rotation)
     return found, estimate, converged, int(iterations), len(kept)
 
 

@@ -22,9 +22,6 @@ DRIFT_RATIO = 0.6
 ATE_RATIO = 0.6
 
 SHORT_OF_TARGET = {
-    ('plicp', 'intel'): "PL-ICP still slips along two of intel's corridors (t = 364-391 s and "
-                        '676-687 s), against the map as against the previous scan: ATE '
-                        '2.0 m (0.70x), drift 3.3 % (0.73x), 4 failed steps (scan: 3)',
     ('nicp', 'mit-csail'): 'drift 0.67 % (0.80x); the three matchers disagree with each '
                            'other by 0.47-0.63 % over 50 m, and with the reference by '
                            "0.66-0.81 %: the keyframe reference's own error is about "

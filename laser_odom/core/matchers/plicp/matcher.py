@@ -12,8 +12,11 @@ Around that core: a coarse phase (wide gate, fixed keep fraction) brings a rough
 prediction to the optimum, then a fine phase (tight gate, adaptive trimming of the
 worst residuals) keeps moving people and unmatched scan edges out of the fit; the
 iteration stops on a small step, a repeated pairing (a cycle, as CSM detects it) or
-the cap; a poor result is retried from the rotations where the two scans' wall
-directions agree. The information matrix is the point-to-line Hessian with surface
+the cap. Against a view of the local map the fine phase first lets every pair pull
+(Huber weights) and trims only from where that settles: trimming from the start is
+blind to a corridor's axis, whose few witnesses it drops (``map_huber_sigma``). A
+poor result is retried from the rotations where the two scans' wall directions
+agree. The information matrix is the point-to-line Hessian with surface
 normals fitted over a metre of wall, scaled by the residual variance.
 """
 
@@ -88,6 +91,15 @@ class PlicpConfig(MatcherConfig):
         0.02, 'restart_residual against a view of the local map (reference: local_map): '
         'its lines are averages of many scans ray-cast across map cells, and even correct '
         'matches leave larger residuals on them (0 = never).', 0.0, 10.0)
+    map_huber_sigma: float = param(
+        3.5, 'Against a view of the local map (reference: local_map) the fine phase first '
+        'weights every pair (Huber, beyond this many robust sigmas, 1.4826 MAD) and trims '
+        'only once that fit settled: along a corridor the few pairs that see its axis '
+        '(door frames, the far end) have the largest residuals while the estimate is off '
+        'along it, and trimming from the start drops exactly them, so the match stays '
+        'where it began. Just above trim_sigma: the weighted fit counts in full every '
+        'pair the trimming may keep (0 = trim from the start, as against a scan).',
+        0.0, 100.0)
     restart_max_rotation: float = param(
         0.4, 'Restart rotations are searched this far [rad] around the guess.',
         0.0, math.pi / 2)
@@ -108,11 +120,15 @@ class _Run:
     pairs: Pairs
     moved: np.ndarray
     residuals: np.ndarray
+    weights: np.ndarray
+    """Each kept pair's weight in the fit: one once trimmed (Huber's if the iteration
+    cap came first)."""
 
     @property
     def rms(self) -> float:
-        """RMS point-to-line residual of the kept pairs at the final estimate [m]."""
-        return float(np.sqrt(np.mean(self.residuals ** 2)))
+        """Weighted RMS point-to-line residual of the kept pairs at the final estimate [m]."""
+        return float(np.sqrt(np.sum(self.weights * self.residuals ** 2)
+                             / max(np.sum(self.weights), 1e-300)))
 
 
 @register
@@ -132,11 +148,13 @@ class PlicpMatcher(ScanMatcher):
             return MatchResult.failure(guess, reason='too few points')
         segments = reference_segments(reference, cfg.max_beam_gap, cfg.max_segment_length,
                                       cfg.information_window)
-        run = self._run(segments, reference.bearing_index, current, guess)
+        huber = cfg.map_huber_sigma if reference.virtual else 0.0
+        run = self._run(segments, reference.bearing_index, current, guess, huber)
         iterations = run.iterations if run is not None else 0
         limit = cfg.map_restart_residual if reference.virtual else cfg.restart_residual
         if limit > 0.0 and (run is None or not run.converged or run.rms > limit):
-            run, extra = self._restart(segments, reference, current, guess, run, limit)
+            run, extra = self._restart(segments, reference, current, guess, run, limit,
+                                       huber)
             iterations += extra
         if run is None:
             return MatchResult.failure(guess, iterations, 0, 'too few pairs')
@@ -144,16 +162,16 @@ class PlicpMatcher(ScanMatcher):
         # surface normals: the information the scene's geometry really holds.
         information = point_to_line_information(
             run.moved - run.estimate[:2], segments.surface_normals[run.pairs.nearest],
-            run.residuals, np.ones(len(run.residuals)))
+            run.residuals, run.weights)
         return MatchResult(
             pose=run.estimate, converged=run.converged, iterations=iterations,
-            inlier_ratio=len(run.residuals) / len(current), residual=run.rms,
+            inlier_ratio=float(np.sum(run.weights)) / len(current), residual=run.rms,
             information=information, covariance=covariance_from_information(information),
             correspondences=len(run.residuals))
 
     def _restart(self, segments: ReferenceSegments, reference: ScanPoints,
                  current: ScanPoints, guess: se2.Pose, first: _Run | None,
-                 limit: float) -> tuple[_Run | None, int]:
+                 limit: float, huber: float) -> tuple[_Run | None, int]:
         """Retry from the rotations where the wall directions agree; keep the best run.
 
         PL-ICP only converges near its guess, and a prediction can be tens of degrees
@@ -169,7 +187,7 @@ class PlicpMatcher(ScanMatcher):
         for rotation in rotation_candidates(reference, current, guess[2],
                                             cfg.restart_max_rotation, cfg.restart_candidates):
             run = self._run(segments, reference.bearing_index, current,
-                            np.array([guess[0], guess[1], rotation]))
+                            np.array([guess[0], guess[1], rotation]), huber)
             if run is None:
                 continue
             iterations += run.iterations
@@ -181,16 +199,22 @@ class PlicpMatcher(ScanMatcher):
         return (None if best is None else best[2]), iterations
 
     def _run(self, segments: ReferenceSegments, index: BearingIndex, current: ScanPoints,
-             guess: se2.Pose) -> _Run | None:
-        """Iterate from ``guess`` until the step is small, a pairing repeats, or the cap."""
+             guess: se2.Pose, huber: float = 0.0) -> _Run | None:
+        """Iterate from ``guess`` until the step is small, a pairing repeats, or the cap.
+
+        With ``huber`` > 0 the fine phase weights every pair (Huber, that many robust
+        sigmas) until it settles, and trims only from there (``map_huber_sigma``).
+        """
         cfg = self.config
-        found, estimate, converged, iterations, kept, moved, line, segment, delta = iterate(
+        (found, estimate, converged, iterations, kept, moved, line, segment, weights,
+         delta) = iterate(
             segments.table, index.sorted_points, index.bearings, index.directions,
             index.order, current.points, np.asarray(guess, dtype=float), cfg.max_iterations,
             cfg.min_correspondences, cfg.coarse_keep_fraction,
             cfg.coarse_correspondence_distance, cfg.coarse_step,
             cfg.max_correspondence_distance, cfg.min_keep_fraction, cfg.max_keep_fraction,
-            cfg.trim_sigma, cfg.convergence_translation, cfg.convergence_rotation)
+            cfg.trim_sigma, float(huber), cfg.convergence_translation,
+            cfg.convergence_rotation)
         if not found:
             return None
         pairs = Pairs(moved, line[:, :2], segment >> 1, line[:, 2])
@@ -198,7 +222,8 @@ class PlicpMatcher(ScanMatcher):
         moved = se2.transform_points(delta, pairs.points)
         residuals = (pairs.normals[:, 0] * moved[:, 0] + pairs.normals[:, 1] * moved[:, 1]
                      - pairs.offset)
-        return _Run(estimate, bool(converged), int(iterations), pairs, moved, residuals)
+        return _Run(estimate, bool(converged), int(iterations), pairs, moved, residuals,
+                    weights)
 
     def _consensus(self, segments: ReferenceSegments, reference: ScanPoints,
                    current: ScanPoints, run: _Run, limit: float) -> float:

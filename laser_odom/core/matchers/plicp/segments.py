@@ -18,7 +18,8 @@ import math
 import numba
 import numpy as np
 
-from laser_odom.core.matchers.robust import adaptive_keep_fraction, trimmed_mask
+from laser_odom.core.matchers.robust import (
+    adaptive_keep_fraction, kernel_weights, median_magnitude, trimmed_mask)
 from laser_odom.core.scan.laser_scan import ScanPoints
 from laser_odom.core.scan.nearest import BearingIndex, nearest_by_bearing
 from laser_odom.core.se2 import move_points
@@ -224,24 +225,32 @@ def _pair(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
     return paired[:k], segment_id[:k], line[:k]
 
 
+WEIGHT_STEPS = 256
+"""Resolution of the Huber weights in a pairing's hash: a pairing whose weights still
+change by more is not a repeat (the reweighted fit has not settled)."""
+
+
 @numba.njit(cache=True, nogil=True)
 def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
                   directions: np.ndarray, order: np.ndarray, points: np.ndarray,
                   estimate: np.ndarray, max_distance: float, keep_fraction: float,
                   min_keep_fraction: float, max_keep_fraction: float,
-                  trim_sigma: float, hints: np.ndarray) -> tuple:
-    """One PL-ICP pairing: move, pair, trim, and sum the normal equations (compiled).
+                  trim_sigma: float, huber_sigmas: float, hints: np.ndarray) -> tuple:
+    """One PL-ICP pairing: move, pair, trim or weight, and sum the normal equations.
 
-    ``points`` are moved by ``estimate`` and paired (:func:`pair_with_segments`);
-    the pairs with the smallest point-to-line residuals are kept - a fixed
-    ``keep_fraction``, or when it is negative the adaptive fraction
-    (:func:`adaptive_keep_fraction`). ``hints`` carry each point's nearest reference
+    ``points`` are moved by ``estimate`` and paired (:func:`pair_with_segments`).
+    With ``huber_sigmas`` <= 0 the pairs with the smallest point-to-line residuals are
+    kept - a fixed ``keep_fraction``, or when it is negative the adaptive fraction
+    (:func:`adaptive_keep_fraction`) - each with weight one. With ``huber_sigmas`` > 0
+    every pair is kept and weighted by the Huber kernel beyond that many robust sigmas
+    (:func:`huber_weights`). ``hints`` carry each point's nearest reference
     point from one iteration to the next (:func:`.nearest.nearest_by_bearing`, updated
     in place). Returns the kept current-point indices, their
-    moved points, lines ``(n_x, n_y, n . q)`` and segment ids, the normal equations
-    ``M = sum a a^T``, ``m = sum (n . q) a`` of the closed-form step
+    moved points, lines ``(n_x, n_y, n . q)``, segment ids and weights, the normal
+    equations ``M = sum w a a^T``, ``m = sum w (n . q) a`` of the closed-form step
     (``a = (n_x, n_y, n . p, n x p)``, :func:`.plicp.solver.solve_normal_equations`),
-    and a hash of the pairing (equal pairings give equal steps: a repeat is a cycle).
+    and a hash of the pairing and its weights (to :data:`WEIGHT_STEPS`; equal pairings
+    and weights give equal steps: a repeat is a cycle).
     """
     moved = move_points(estimate, points)
     paired, segment_id, line = _pair(table, sorted_points, bearings, directions, order,
@@ -251,16 +260,21 @@ def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.nda
     for k in range(count):
         i = paired[k]
         residuals[k] = line[k, 0] * moved[i, 0] + line[k, 1] * moved[i, 1] - line[k, 2]
-    if keep_fraction < 0.0:
-        keep_fraction = adaptive_keep_fraction(residuals, min_keep_fraction,
-                                               max_keep_fraction, trim_sigma)
-    mask = trimmed_mask(residuals, keep_fraction)
-    kept = np.flatnonzero(mask)
+    if huber_sigmas > 0.0:
+        weights = huber_weights(residuals, huber_sigmas)
+        kept = np.arange(count)
+    else:
+        if keep_fraction < 0.0:
+            keep_fraction = adaptive_keep_fraction(residuals, min_keep_fraction,
+                                                   max_keep_fraction, trim_sigma)
+        kept = np.flatnonzero(trimmed_mask(residuals, keep_fraction))
+        weights = np.ones(count)
     size = kept.shape[0]
     kept_paired = np.empty(size, dtype=np.int64)
     kept_moved = np.empty((size, 2))
     kept_line = np.empty((size, 3))
     kept_segment = np.empty(size, dtype=np.int64)
+    kept_weight = np.empty(size)
     big_m = np.zeros((4, 4))
     small_m = np.zeros(4)
     signature = np.uint64(14695981039346656037)
@@ -270,28 +284,43 @@ def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.nda
         i = paired[k]
         px, py = moved[i, 0], moved[i, 1]
         nx, ny, offset = line[k, 0], line[k, 1], line[k, 2]
-        kept_paired[m], kept_segment[m] = i, segment_id[k]
+        w = weights[k]
+        kept_paired[m], kept_segment[m], kept_weight[m] = i, segment_id[k], w
         kept_moved[m, 0], kept_moved[m, 1] = px, py
         kept_line[m, 0], kept_line[m, 1], kept_line[m, 2] = nx, ny, offset
         a0, a1, a2, a3 = nx, ny, nx * px + ny * py, ny * px - nx * py
-        small_m[0] += a0 * offset
-        small_m[1] += a1 * offset
-        small_m[2] += a2 * offset
-        small_m[3] += a3 * offset
-        big_m[0, 0] += a0 * a0
-        big_m[0, 1] += a0 * a1
-        big_m[0, 2] += a0 * a2
-        big_m[0, 3] += a0 * a3
-        big_m[1, 1] += a1 * a1
-        big_m[1, 2] += a1 * a2
-        big_m[1, 3] += a1 * a3
-        big_m[2, 2] += a2 * a2
-        big_m[2, 3] += a2 * a3
-        big_m[3, 3] += a3 * a3
+        small_m[0] += w * a0 * offset
+        small_m[1] += w * a1 * offset
+        small_m[2] += w * a2 * offset
+        small_m[3] += w * a3 * offset
+        big_m[0, 0] += w * a0 * a0
+        big_m[0, 1] += w * a0 * a1
+        big_m[0, 2] += w * a0 * a2
+        big_m[0, 3] += w * a0 * a3
+        big_m[1, 1] += w * a1 * a1
+        big_m[1, 2] += w * a1 * a2
+        big_m[1, 3] += w * a1 * a3
+        big_m[2, 2] += w * a2 * a2
+        big_m[2, 3] += w * a2 * a3
+        big_m[3, 3] += w * a3 * a3
         signature = (signature ^ np.uint64(i)) * prime  # FNV-1a over the pairing
         signature = (signature ^ np.uint64(segment_id[k])) * prime
+        signature = (signature ^ np.uint64(int(w * WEIGHT_STEPS))) * prime
     for a in range(4):
         for b in range(a):
             big_m[a, b] = big_m[b, a]
-    return (kept_paired, kept_moved, kept_line, kept_segment, big_m, small_m, signature,
-            count)
+    return (kept_paired, kept_moved, kept_line, kept_segment, kept_weight, big_m, small_m,
+            signature, count)
+
+
+@numba.njit(cache=True, nogil=True)
+def huber_weights(residuals: np.ndarray, sigmas: float) -> np.ndarray:
+    """Return Huber IRLS weights: one within ``sigmas`` robust sigmas, falling beyond.
+
+    The robust sigma is 1.4826 times the median absolute residual (floored at a
+    micrometre, so a noise-free fit does not make every residual an outlier).
+    """
+    if residuals.shape[0] == 0:
+        return np.ones(0)
+    scale = sigmas * max(1.4826 * median_magnitude(residuals), 1e-6)
+    return kernel_weights(residuals, 1, scale)

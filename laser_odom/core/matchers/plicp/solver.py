@@ -130,38 +130,47 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
             max_iterations: int, min_correspondences: int, coarse_keep_fraction: float,
             coarse_distance: float, coarse_step: float, max_distance: float,
             min_keep_fraction: float, max_keep_fraction: float, trim_sigma: float,
-            convergence_translation: float, convergence_rotation: float) -> tuple:
+            huber_sigmas: float, convergence_translation: float,
+            convergence_rotation: float) -> tuple:
     """Run PL-ICP iterations from ``guess`` (compiled; the loop of ``PlicpMatcher._run``).
 
     Each iteration pairs and trims (:func:`.plicp.segments.pair_and_trim`, the coarse
     phase with its wide gate and fixed keep fraction while a step still exceeds
-    ``coarse_step``) and takes the exact closed-form step. It stops on a step below
-    the convergence thresholds, on a pairing seen before (the step depends only on the
-    pairing, so a repeat is a cycle - CSM's loop detection), or at the cap. Returns
-    whether enough pairs were found, the estimate, whether it converged, the
-    iterations, the last kept pairs (current indices, moved points, lines, segment
-    ids) and the last step.
+    ``coarse_step``, then the fine phase adaptively) and takes the exact closed-form
+    step. With ``huber_sigmas`` > 0 the fine phase begins with every pair, Huber
+    weighted, and trims only once that fit settled: pairs that alone observe a
+    direction (a corridor's door frames) move the estimate before their residuals are
+    judged, instead of being trimmed for disagreeing with where it started. A phase
+    ends on a step below the convergence thresholds or on a pairing (with its weights)
+    seen before in it (the step depends only on them, so a repeat is a cycle - CSM's
+    loop detection); the iteration cap ends all. Returns whether enough pairs were
+    found, the estimate, whether it converged, the iterations, the last kept pairs
+    (current indices, moved points, lines, segment ids, weights) and the last step.
     """
     estimate = guess.copy()
     hints = np.full(points.shape[0], -1, dtype=np.int64)  # nearest of the last iteration
-    seen = np.zeros(max_iterations, dtype=np.uint64)  # pairings of the fine phase
+    seen = np.zeros(max_iterations, dtype=np.uint64)  # pairings of the current phase
     seen_count = 0
     coarse = coarse_keep_fraction > 0.0
+    weighted = huber_sigmas > 0.0  # the fine phase's weighted start is to come
     converged = False
     kept = np.zeros(0, dtype=np.int64)
+    weight = np.zeros(0)
     moved = np.zeros((0, 2))
     line = np.zeros((0, 3))
     segment = np.zeros(0, dtype=np.int64)
     delta = np.zeros(3)
     iterations = 0
     for iterations in range(1, max_iterations + 1):
-        kept, moved, line, segment, big_m, small_m, signature, paired = pair_and_trim(
+        kept, moved, line, segment, weight, big_m, small_m, signature, paired = pair_and_trim(
             table, sorted_points, bearings, directions, order, points, estimate,
             coarse_distance if coarse else max_distance,
             coarse_keep_fraction if coarse else -1.0,  # negative: adaptive trimming
-            min_keep_fraction, max_keep_fraction, trim_sigma, hints)
+            min_keep_fraction, max_keep_fraction, trim_sigma,
+            huber_sigmas if weighted and not coarse else 0.0, hints)
         if paired < min_correspondences:
-            return False, estimate, False, iterations, kept, moved, line, segment, delta
+            return (False, estimate, False, iterations, kept, moved, line, segment, weight,
+                    delta)
         delta = solve_normal_equations(big_m, small_m)
         updated = compose_poses(delta, estimate)
         step = relative_pose(estimate, updated)
@@ -173,8 +182,12 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
         for previous in seen[:seen_count]:
             repeated = repeated or previous == signature
         if is_small_step(step, convergence_translation, convergence_rotation) or repeated:
-            converged = True
-            break
+            if not weighted:
+                converged = True
+                break
+            weighted = False  # settled on every pair: trim from here
+            seen_count = 0
+            continue
         seen[seen_count] = signature
         seen_count += 1
-    return True, estimate, converged, iterations, kept, moved, line, segment, delta
+    return True, estimate, converged, iterations, kept, moved, line, segment, weight, delta
