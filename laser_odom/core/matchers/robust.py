@@ -13,6 +13,9 @@ import numpy as np
 
 KERNELS = ('none', 'huber', 'cauchy', 'tukey')
 
+HUBER = KERNELS.index('huber')
+"""The Huber kernel's code in compiled code (:func:`kernel_weights`)."""
+
 
 def robust_weights(residuals: np.ndarray, kernel: str, scale: float) -> np.ndarray:
     """Return IRLS weights in [0, 1] for ``residuals`` under ``kernel`` with ``scale``."""
@@ -98,11 +101,17 @@ def adaptive_keep_fraction(residuals: np.ndarray, min_fraction: float,
     """
     if residuals.size == 0 or min_fraction >= max_fraction:
         return max_fraction  # nothing to choose: no need to sort
-    sigma = 1.4826 * median_magnitude(residuals)
+    sigma = robust_sigma(residuals)
     if sigma <= 0.0:
         return max_fraction
     fraction = np.count_nonzero(np.abs(residuals) <= sigma_multiplier * sigma) / residuals.size
     return min(max(fraction, min_fraction), max_fraction)
+
+
+@numba.njit(cache=True, nogil=True)
+def robust_sigma(residuals: np.ndarray) -> float:
+    """Return the robust standard deviation of residuals, 1.4826 times their MAD."""
+    return 1.4826 * median_magnitude(residuals)
 
 
 @numba.njit(cache=True, nogil=True)

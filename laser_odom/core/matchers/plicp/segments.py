@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from laser_odom.core.matchers.robust import (
-    adaptive_keep_fraction, kernel_weights, median_magnitude, trimmed_mask)
+    adaptive_keep_fraction, HUBER, kernel_weights, robust_sigma, trimmed_mask)
 from laser_odom.core.scan.laser_scan import ScanPoints
 from laser_odom.core.scan.nearest import BearingIndex, nearest_by_bearing
 from laser_odom.core.se2 import move_points
@@ -317,10 +317,10 @@ def pair_and_trim(table: np.ndarray, sorted_points: np.ndarray, bearings: np.nda
 def huber_weights(residuals: np.ndarray, sigmas: float) -> np.ndarray:
     """Return Huber IRLS weights: one within ``sigmas`` robust sigmas, falling beyond.
 
-    The robust sigma is 1.4826 times the median absolute residual (floored at a
-    micrometre, so a noise-free fit does not make every residual an outlier).
+    The robust sigma (:func:`.robust.robust_sigma`) is floored at a micrometre, so a
+    noise-free fit does not make every residual an outlier.
     """
     if residuals.shape[0] == 0:
         return np.ones(0)
-    scale = sigmas * max(1.4826 * median_magnitude(residuals), 1e-6)
-    return kernel_weights(residuals, 1, scale)
+    scale = sigmas * max(robust_sigma(residuals), 1e-6)
+    return kernel_weights(residuals, HUBER, scale)
