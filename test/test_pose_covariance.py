@@ -2,10 +2,12 @@
 
 NEES (e^T P^-1 e, 3 dof: about 3 when honest) of relative poses over 1, 10 and 100
 steps and of the integrated pose the pipeline publishes, against the simulator's
-truth, in two worlds with two noise seeds each (averaged per world), keyframes off and
-on, and matching against the local map. Far below 3 fails too: a covariance too
-pessimistic to be useful. The simulated scanner is exact but for its noise, so the
-heading walk of a real one is set to 0.
+truth, in two worlds with four noise seeds each (averaged per world), keyframes off
+and on, and matching against the local map. The integrated NEES of one run varies
+much from seed to seed (plicp against the map in the cluttered world, seeds 1-10:
+1.5-6.6, mean 3.5), so two seeds were too few to tell a calibration from a draw. Far
+below 3 fails too: a covariance too pessimistic to be useful. The simulated scanner
+is exact but for its noise, so the heading walk of a real one is set to 0.
 """
 
 from dataclasses import dataclass, replace
@@ -27,7 +29,7 @@ from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepEr
 
 LOW, HIGH = 1.5, 6.0
 WINDOWS = (1, 10, 100)
-SEEDS = {'office': (5, 9), 'cluttered': (6, 10)}
+SEEDS = {'office': (5, 9, 1, 2), 'cluttered': (6, 10, 1, 2)}
 MATCHERS = ('plicp', 'nicp', 'imls', 'icp')
 
 

@@ -18,7 +18,7 @@ measured on (:mod:`laser_odom.core.motion.blind_prior`).
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 import statistics
 
@@ -275,6 +275,23 @@ class Registrar:
         registration = Registration(local)
         registration.prediction = self.predict(guess, '', reference, current)
         return registration, passed
+
+    def refine(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
+               found: Registration, config: PipelineConfig) -> Registration | None:
+        """Refine a step found against another reference; None if the refinement failed.
+
+        The matcher starts from ``found``'s pose as from a trusted prediction, and the
+        refined match is checked like one (:meth:`local_failure`: converged, paired,
+        fitting about as usual, within ``max_correction_*`` of that pose). It keeps
+        how the step was found (the search, its window, the prediction, the poses
+        that fitted alike), so it is judged as that searched step.
+        """
+        self._begin(reference, current)
+        start = found.match.pose
+        refined = self.local_match(matcher, reference, current, start, True)
+        if self.local_failure(refined, start, config):
+            return None
+        return replace(found, match=refined, local_failure='', failure_detail='')
 
     def _begin(self, reference: ScanPoints, current: ScanPoints) -> None:
         """Start registering ``current`` against ``reference``: the time and the stamps."""
