@@ -142,13 +142,13 @@ class MapRegistrar:
         map's ``view`` from there (:meth:`.Registrar.refine`); the refined match
         stands when it passes the usual checks of a match from a prediction, is clean
         too and agrees with the found step within their covariances
-        (:func:`steps_agree`), else the previous scan's. A degenerate or ambiguous result stands as
-        it is, with the covariance that says so: refined on the map, such a step slid
-        along a corridor's axis, or was judged clean at a wrong pose (intel's
-        keyframes). Only a rejected result lets the map's own global search run, and
-        its result stands when judged better (:func:`match_rank`). Searching the map
-        from afar found wrong poses that it judged clean: on intel's keyframes a wrong
-        turn of 120 deg against a correct but degenerate match.
+        (:func:`steps_agree`), else the previous scan's. A degenerate or ambiguous
+        result stands as it is, with the covariance that says so: refined on the map,
+        such a step slid along a corridor's axis, or was judged clean at a wrong pose
+        (intel's keyframes). Only a rejected result lets the map's own global search
+        run, and its result stands when judged better (:func:`match_rank`). Searching
+        the map from afar found wrong poses that it judged clean: on intel's keyframes
+        a wrong turn of 120 deg against a correct but degenerate match.
         """
         scale = current.length_scale
         found = self.scan_registrar.register(matcher, previous, current, guess, config,
