@@ -22,6 +22,8 @@ from laser_odom.core.matchers.imls.solver import (
 from laser_odom.core.matchers.imls.surface import (
     candidate_ranking, implicit_surface, model_from_arrays, observability_scores, planarity,
     project_onto_surface, select_on_surface, surface_model, SurfaceSample)
+from laser_odom.core.matchers.information import (
+    debiased_point_to_line_information, point_to_line_information)
 from laser_odom.core.matchers.robust import inlier_mask, kernel_code, kernel_weights
 from laser_odom.core.parameters import as_dict, ParameterError
 from laser_odom.core.pipeline.odometry import OdometryPipeline
@@ -419,8 +421,8 @@ def test_surface_information_reports_the_rms_of_the_inlier_distances():
     usable = np.ones(50, dtype=bool)
     normals = np.column_stack((np.cos(moved[:, 0]), np.sin(moved[:, 0])))
     translation = np.array([0.7, -0.4])
-    information, rms = surface_information(moved, translation, values, normals, usable, 0.6,
-                                           3.0, kernel_code('none'), 0.05)
+    information, rms = surface_information(moved, translation, values, normals, np.zeros(50),
+                                           usable, 0.6, 3.0, kernel_code('none'), 0.05)
     assert rms == pytest.approx(math.sqrt(np.mean(values[3:] ** 2)), rel=1e-12)
     # Point to line, lever arms from the estimate's translation: J = [n, l x n].
     levers = moved[3:] - translation
@@ -718,3 +720,31 @@ def test_real_log_mit_csail_first_500_scans(shared_data_dir):
     assert errors.ate_rms < 0.4                # measured 0.14 m
     assert errors.failed_steps == 0
     assert result.counters['rejected'] == 0
+
+
+def test_noise_of_the_normals_does_not_pose_as_information_along_a_corridor():
+    """Walls along x whose normals scatter by s: plain point to line sees the axis."""
+    rng = np.random.default_rng(7)
+    count, s = 400, 0.05
+    x = rng.uniform(-10.0, 10.0, count)
+    y = np.where(np.arange(count) % 2 == 0, 1.5, -1.5)
+    points = np.column_stack((x, y))
+    angle = np.pi / 2 + rng.normal(0.0, s, count)
+    normals = np.column_stack((np.cos(angle), np.sin(angle)))
+    residuals = rng.normal(0.0, 0.01, count)
+    weights = np.ones(count)
+    plain = point_to_line_information(points, normals, residuals, weights)
+    debiased = debiased_point_to_line_information(points, normals, residuals, weights,
+                                                  np.full(count, s * s))
+    across = plain[1, 1]
+    # Plain: the axis looks observed by count s^2 of the across weight.
+    assert plain[0, 0] == pytest.approx(count * s * s / np.var(residuals), rel=0.25)
+    assert plain[0, 0] > 1e-3 * across
+    # Debiased: what the normals' noise put there is gone (the sum stays PSD).
+    assert debiased[0, 0] < 0.1 * plain[0, 0]
+    assert np.all(np.linalg.eigvalsh(debiased) >= -1e-9 * across)
+    assert debiased[1, 1] == pytest.approx(across, rel=0.01)
+    # Without normal noise the two are the same.
+    np.testing.assert_allclose(
+        debiased_point_to_line_information(points, normals, residuals, weights,
+                                           np.zeros(count)), plain, rtol=1e-9, atol=1e-9)

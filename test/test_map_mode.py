@@ -146,3 +146,18 @@ def test_a_refinement_that_moved_a_clean_step_beyond_its_covariance_is_refused()
     turned = MatchVerdict(se2.pose(1.0, 0.0, math.pi), tight, 'matched')
     assert steps_agree(turned, MatchVerdict(se2.pose(1.0, 0.0, -math.pi), tight, 'matched'),
                        1.0)
+
+
+def test_a_featureless_corridor_does_not_run_away_against_the_map():
+    """Neither reference observes the axis: the map must not make the blind walk worse.
+
+    Measured over seeds 1-3 (100 s): mean ATE scan / map plicp 8.50 / 8.50 m, nicp 9.44 /
+    9.42 m, imls 11.1 / 9.8 m, at most one failed step per run. Before imls's
+    information was debiased for the noise of its normals (seed 3 here) it claimed the
+    axis against the map and ran away: ATE 53 m, 231 failed steps.
+    """
+    run = simulate('featureless_corridor', duration=100.0, seed=3)
+    (scan, scan_failed), (mapped, map_failed) = (
+        ate(run, 'imls', reference) for reference in ('scan', 'local_map'))
+    assert scan_failed <= 1 and map_failed <= 1, (scan, scan_failed, mapped, map_failed)
+    assert mapped <= 1.1 * scan, (scan, mapped)

@@ -40,14 +40,47 @@ def point_to_line_information(rotated_points: np.ndarray, normals: np.ndarray,
     floored at :data:`MIN_RESIDUAL_SIGMA` squared. Every matcher whose information is
     point to line (icp, plicp, imls) takes it from here.
     """
+    return _information(rotated_points, normals, residuals, weights,
+                        np.zeros(residuals.shape[0]))
+
+
+@numba.njit(cache=True, nogil=True)
+def debiased_point_to_line_information(rotated_points: np.ndarray, normals: np.ndarray,
+                                       residuals: np.ndarray, weights: np.ndarray,
+                                       normal_var: np.ndarray) -> np.ndarray:
+    """Return :func:`point_to_line_information` debiased for the noise of the normals.
+
+    ``J_i = A_i n_i`` is linear in the normal, ``A_i = [[1, 0], [0, 1], [-p_y, p_x]]``.
+    A normal estimated with direction variance ``s^2``
+    (:func:`.scan.normals.normal_variance`) has ``E[n n^T] = n0 n0^T + s^2 (t0 t0^T -
+    n0 n0^T)``, ``t`` the tangent: summed over a corridor's walls, ``s^2 t t^T``
+    claims that the axis is observed. Each term is therefore
+    ``A ((1 + s^2) n n^T - s^2 t t^T) A^T``, an unbiased estimate of the information
+    the surface holds (the errors-in-variables correction ``nicp`` makes,
+    :func:`.nicp.surface.point_information`). Terms may be indefinite; the sum is
+    projected onto the positive semi-definite cone (a direction that came out
+    negative holds no information).
+    """
+    information = _information(rotated_points, normals, residuals, weights, normal_var)
+    values, vectors = np.linalg.eigh(0.5 * (information + information.T))
+    return (vectors * np.maximum(values, 0.0)) @ vectors.T
+
+
+@numba.njit(cache=True, nogil=True)
+def _information(rotated_points: np.ndarray, normals: np.ndarray, residuals: np.ndarray,
+                 weights: np.ndarray, normal_var: np.ndarray) -> np.ndarray:
+    """Return the point-to-line information, each normal's noise ``normal_var`` removed."""
     information = np.zeros((3, 3))
     total = squares = 0.0
     for i in range(residuals.shape[0]):
-        nx, ny, w = normals[i, 0], normals[i, 1], weights[i]
-        jacobian = (nx, ny, ny * rotated_points[i, 0] - nx * rotated_points[i, 1])
+        nx, ny, w, s2 = normals[i, 0], normals[i, 1], weights[i], normal_var[i]
+        px, py = rotated_points[i, 0], rotated_points[i, 1]
+        jacobian = (nx, ny, ny * px - nx * py)
+        tangent = (-ny, nx, nx * px + ny * py)
         for a in range(3):
             for b in range(3):
-                information[a, b] += w * jacobian[a] * jacobian[b]
+                information[a, b] += w * ((1.0 + s2) * jacobian[a] * jacobian[b]
+                                          - s2 * tangent[a] * tangent[b])
         total += w
         squares += w * residuals[i] * residuals[i]
     variance = max(squares / max(total - 3.0, 1.0), MIN_RESIDUAL_SIGMA * MIN_RESIDUAL_SIGMA)

@@ -158,3 +158,28 @@ def _normals_kernel(points: np.ndarray, distance: np.ndarray, index: np.ndarray,
             nx, ny = -nx, -ny
         normals[i, 0], normals[i, 1] = nx, ny
     return normals, curvature, covariance, valid, count, centroid
+
+
+def eigenvalues_2x2(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the smallest and largest eigenvalue of (N, 2, 2) symmetric matrices."""
+    a, b, c = covariance[:, 0, 0], covariance[:, 0, 1], covariance[:, 1, 1]
+    half_trace = 0.5 * (a + c)
+    spread = np.sqrt(np.square(0.5 * (a - c)) + b * b)
+    return np.maximum(half_trace - spread, 0.0), half_trace + spread
+
+
+def normal_variance(covariance: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Return the variance [rad^2] of each estimated normal direction.
+
+    A line fitted to ``k`` points with across-line scatter ``l1`` and along-line
+    variance ``l2`` has a slope variance ``l1 / ((k - 2) l2)`` (least squares, with
+    the residual variance ``k l1 / (k - 2)``). Capped at 1 (no direction at all).
+    Summed over a corridor's walls, this noise would pose as information along the
+    axis; ``nicp``'s point information and ``imls``'s information remove it
+    (:func:`.matchers.information.debiased_point_to_line_information`).
+    """
+    smallest, largest = eigenvalues_2x2(covariance)
+    dof = np.maximum(count - 2, 0).astype(float)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        variance = smallest / (dof * largest)
+    return np.where(np.isfinite(variance), np.minimum(variance, 1.0), 1.0)

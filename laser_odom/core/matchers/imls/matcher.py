@@ -57,7 +57,7 @@ from laser_odom.core.matchers.robust import (
     kernel_code, KERNELS, median_magnitude)
 from laser_odom.core.parameters import param, retune
 from laser_odom.core.scan.laser_scan import ScanPoints
-from laser_odom.core.scan.normals import estimate_normals, neighbourhoods
+from laser_odom.core.scan.normals import estimate_normals, neighbourhoods, normal_variance
 
 INFORMATION_MIN_NEIGHBOURS = 4
 """Points whose smoother normal rests on fewer neighbours add no information."""
@@ -327,11 +327,13 @@ class ImlsMatcher(ScanMatcher):
         moved = se2.transform_points(estimate, current.points)
         sample = self._surface(ref_model, moved)
         normals = sample.normal
+        normal_var = np.zeros(len(current))
         if cfg.information_neighbours > 0:
             smooth = estimate_normals(reference, cfg.information_neighbours,
                                       cfg.normal_radius, INFORMATION_MIN_NEIGHBOURS)
             nearest = np.minimum(sample.nearest, len(reference) - 1)
             normals = smooth.normals[nearest]
+            normal_var = normal_variance(smooth.covariance, smooth.count)[nearest]
             usable = usable & smooth.valid[nearest]
         ok = sample.defined & usable
         count = int(np.count_nonzero(ok))
@@ -339,7 +341,8 @@ class ImlsMatcher(ScanMatcher):
             return MatchResult.failure(estimate, iterations, count,
                                        'too few points on the surface at the estimate')
         information, residual = surface_information(
-            moved, estimate[:2], sample.value, np.ascontiguousarray(normals), ok,
+            moved, estimate[:2], sample.value, np.ascontiguousarray(normals),
+            np.ascontiguousarray(normal_var, dtype=float), ok,
             cfg.min_keep_fraction, cfg.outlier_sigmas, kernel_code(cfg.robust_kernel),
             cfg.robust_scale)
         return MatchResult(

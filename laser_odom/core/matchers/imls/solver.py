@@ -16,7 +16,7 @@ from laser_odom.core import se2
 from laser_odom.core.matchers.imls.surface import (
     implicit_surface_kernel, planarity, project_onto_surface)
 from laser_odom.core.matchers.information import (
-    covariance_from_information, point_to_line_information, point_to_line_jacobians)
+    covariance_from_information, debiased_point_to_line_information, point_to_line_jacobians)
 from laser_odom.core.matchers.robust import inlier_mask, kernel_weights
 from laser_odom.core.se2 import is_small_step, move_points, wrap_angle
 
@@ -200,21 +200,23 @@ def refine(sorted_points: np.ndarray, bearings: np.ndarray, directions: np.ndarr
 
 @numba.njit(cache=True, nogil=True)
 def surface_information(moved: np.ndarray, translation: np.ndarray, values: np.ndarray,
-                        normals: np.ndarray, usable: np.ndarray, min_keep_fraction: float,
-                        outlier_sigmas: float, kernel: int, robust_scale: float
-                        ) -> tuple[np.ndarray, float]:
+                        normals: np.ndarray, normal_var: np.ndarray, usable: np.ndarray,
+                        min_keep_fraction: float, outlier_sigmas: float, kernel: int,
+                        robust_scale: float) -> tuple[np.ndarray, float]:
     """Return the information and RMS surface distance of a final estimate.
 
     Over the ``usable`` points (surface value defined, normal usable) of the current
     scan ``moved`` by the estimate: the adaptive inliers of their surface distances
     ``values`` (:func:`.robust.inlier_mask`), weighted by the robust kernel, give the
-    point-to-plane information (:func:`.information.point_to_line_information`, lever
-    arms from the estimate's ``translation``) and the RMS of the inlier distances.
+    point-to-plane information, debiased for the variance ``normal_var`` of each
+    normal (:func:`.information.debiased_point_to_line_information`, lever arms from
+    the estimate's ``translation``), and the RMS of the inlier distances.
     """
     index = np.flatnonzero(usable)
     kept = index[inlier_mask(values[index], min_keep_fraction, outlier_sigmas)]
     residuals = values[kept]
     levers = moved[kept] - translation
-    information = point_to_line_information(levers, normals[kept], residuals,
-                                            kernel_weights(residuals, kernel, robust_scale))
+    information = debiased_point_to_line_information(
+        levers, normals[kept], residuals, kernel_weights(residuals, kernel, robust_scale),
+        normal_var[kept])
     return information, math.sqrt(np.mean(residuals * residuals))

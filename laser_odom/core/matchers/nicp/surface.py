@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_odom.core.scan.laser_scan import ScanPoints
-from laser_odom.core.scan.normals import neighbourhoods, normals_from_neighbours, SurfaceNormals
+from laser_odom.core.scan.normals import (
+    eigenvalues_2x2, neighbourhoods, normal_variance, normals_from_neighbours, SurfaceNormals)
 
 
 @dataclass(frozen=True)
@@ -64,28 +65,6 @@ class NicpSurface:
     orientation_histogram: np.ndarray
 
 
-def _eigenvalues(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the smallest and largest eigenvalue of (N, 2, 2) symmetric matrices."""
-    a, b, c = covariance[:, 0, 0], covariance[:, 0, 1], covariance[:, 1, 1]
-    half_trace = 0.5 * (a + c)
-    spread = np.sqrt(np.square(0.5 * (a - c)) + b * b)
-    return np.maximum(half_trace - spread, 0.0), half_trace + spread
-
-
-def normal_variance(covariance: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Return the variance [rad^2] of each estimated normal direction.
-
-    A line fitted to ``k`` points with across-line scatter ``l1`` and along-line
-    variance ``l2`` has a slope variance ``l1 / ((k - 2) l2)`` (least squares, with
-    the residual variance ``k l1 / (k - 2)``). Capped at 1 (no direction at all).
-    """
-    smallest, largest = _eigenvalues(covariance)
-    dof = np.maximum(count - 2, 0).astype(float)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        variance = smallest / (dof * largest)
-    return np.where(np.isfinite(variance), np.minimum(variance, 1.0), 1.0)
-
-
 def point_information(covariance: np.ndarray, normals: np.ndarray, flat: np.ndarray,
                       point_sigma: float, tangent_sigma: float,
                       normal_var: np.ndarray | None = None) -> np.ndarray:
@@ -115,7 +94,7 @@ def point_information(covariance: np.ndarray, normals: np.ndarray, flat: np.ndar
     the reported information uses it; single rows may then be indefinite (the matcher
     projects the summed information back onto the positive semi-definite cone).
     """
-    smallest, largest = _eigenvalues(covariance)
+    smallest, largest = eigenvalues_2x2(covariance)
     reg = point_sigma * point_sigma
     across = 1.0 / (smallest + reg)
     along = 1.0 / (largest + reg + np.where(flat, tangent_sigma ** 2, 0.0))
