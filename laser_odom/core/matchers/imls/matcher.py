@@ -18,7 +18,10 @@ III, brought to 2D scan-to-scan odometry:
    selected ones: the selection deliberately balances the directions, so its Hessian
    would hide the very degeneracy (a corridor) that the pipeline reads from the
    eigenvalues. Its normals come from wider neighbourhoods (``information_neighbours``)
-   so that normal noise does not pose as information along a wall.
+   so that normal noise does not pose as information along a wall, and what noise
+   they keep is removed from each term (errors in variables, as ``nicp`` does:
+   :func:`.information.debiased_point_to_line_information`); in a featureless
+   corridor the axis otherwise looked observed and the odometry ran away.
 5. Scan-to-scan, the roles of the two scans are not symmetric: the surface comes
    from the reference, so its sparse sampling and noisy normals (far walls,
    one-degree beams) pass into the estimate. With ``symmetric`` the reference is also
