@@ -15,10 +15,10 @@ import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.evaluation.consistency import (
-    integrated_nees, nees, reference_at, ReferenceNoise, run_consistency, window_nees,
+    integrated_nees, reference_at, ReferenceNoise, run_consistency, window_nees,
     window_nees_values)
 from laser_odom.core.trajectory import Trajectory
-from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepErrorModel
+from laser_odom.core.uncertainty.pose_uncertainty import nees, PoseUncertainty, StepErrorModel
 
 S = np.diag([4e-4, 1e-4, 3e-6])
 """Step covariance: 2 cm along, 1 cm across, 0.1 deg."""

@@ -63,7 +63,8 @@ from laser_odom.core.evaluation.metrics import (
     associate, DEFAULT_MAX_OFFSET_NS, FAILED_ROTATION_DEG, FAILED_TRANSLATION,
     paired_reference_poses, relative_errors)
 from laser_odom.core.trajectory import Trajectory
-from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, StepErrorModel
+from laser_odom.core.uncertainty.pose_uncertainty import (
+    CHI2_3DOF_999, nees, PoseUncertainty, StepErrorModel)
 
 WINDOWS = (1, 10, 100)
 """Window lengths [steps] of the relative-pose NEES the benchmark and the tests report."""
@@ -75,9 +76,9 @@ is still close to zero there, so the reference noise alone would dominate)."""
 DOF = 3
 """Degrees of freedom of a planar pose: the mean NEES of an honest covariance."""
 
-ANNOUNCED_NEES = 16.27
-"""The 99.9 % quantile of chi-square with 3 dof: a failed step whose NEES against its
-published covariance is within it was announced (the covariance covers it)."""
+ANNOUNCED_NEES = CHI2_3DOF_999
+"""A failed step whose NEES against its published covariance is within the 99.9 %
+chi-square bound was announced (the covariance covers it)."""
 
 
 @dataclass(frozen=True)
@@ -108,13 +109,6 @@ class ReferenceNoise:
 
 NO_REFERENCE_NOISE = ReferenceNoise()
 """A reference that is the truth (simulated data)."""
-
-
-def nees(error: np.ndarray, covariance: np.ndarray) -> float:
-    """Return ``e^T P^-1 e`` with the angle of ``e`` wrapped to (-pi, pi]."""
-    error = np.array(error, dtype=float)
-    error[2] = se2.wrap_angle(error[2])
-    return float(error @ np.linalg.solve(covariance, error))
 
 
 def reference_at(estimate: Trajectory, reference: Trajectory,

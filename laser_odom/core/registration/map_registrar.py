@@ -33,6 +33,7 @@ from laser_odom.core.registration.acceptance import judge_match, MatchVerdict
 from laser_odom.core.registration.local_map.reference import fits_usual, MapReference, MAX_REFUSED
 from laser_odom.core.registration.registrar import Registrar, Registration
 from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
+from laser_odom.core.uncertainty.pose_uncertainty import CHI2_3DOF_999, nees
 
 MAP_EVENTS = ('map_fallback', 'map_restarted')
 """Counted events of map matching: a step taken from the previous scan because it
@@ -41,10 +42,6 @@ scan (``map_restarted``: after a rejected match, or scans in a row fitting it po
 
 STATUS_RANK = {'rejected': 0, 'degenerate': 1, 'matched': 2}
 """Order of the verdicts, worst first."""
-
-AGREEMENT_CHI2 = 16.27
-"""Two measurements of one step agree when their difference, weighed by the sum of
-their covariances, is within this (chi-square, 3 degrees of freedom, 99.9 %)."""
 
 
 class JudgedMatch(NamedTuple):
@@ -226,15 +223,14 @@ def steps_agree(found: MatchVerdict, refined: MatchVerdict, map_scale: float) ->
 
     Both measure the same step; their difference ``d`` is weighed by the sum of their
     published covariances (the map's scaled by ``map_covariance_scale``, as
-    :func:`.pose_uncertainty.step_error` publishes it): ``d^T (P1 + P2)^-1 d`` within
-    :data:`AGREEMENT_CHI2`. The two share the current scan's noise, so the test is
-    lenient. A refinement that moved a clean match by more slid into another minimum
-    of the map (measured on intel's keyframes: 0.5 m along a corridor, silently).
+    :func:`.pose_uncertainty.step_error` publishes it): ``d^T (P1 + P2)^-1 d``
+    (:func:`.pose_uncertainty.nees`) within the 99.9 % chi-square bound. The two share
+    the current scan's noise, so the test is lenient. A refinement that moved a clean
+    match by more slid into another minimum of the map (measured on intel's keyframes:
+    0.5 m along a corridor, silently).
     """
-    difference = np.array(refined.pose, dtype=float) - np.asarray(found.pose, dtype=float)
-    difference[2] = se2.wrap_angle(difference[2])
     covariance = np.asarray(found.covariance) + map_scale * np.asarray(refined.covariance)
     try:
-        return float(difference @ np.linalg.solve(covariance, difference)) <= AGREEMENT_CHI2
+        return nees(np.asarray(refined.pose) - found.pose, covariance) <= CHI2_3DOF_999
     except np.linalg.LinAlgError:
         return False

@@ -86,6 +86,10 @@ import numpy as np
 
 from laser_odom.core import se2
 
+CHI2_3DOF_999 = 16.27
+"""The 99.9 % quantile of chi-square with 3 dof: a pose error whose :func:`nees` against
+a covariance is within it is covered by that covariance."""
+
 POSE = slice(0, 3)
 """The pose block of the joint state; then the newest scan's noise (3:6) and the bias (6:9)."""
 
@@ -233,3 +237,10 @@ def _propagate(joint: np.ndarray, scan_known: bool, ja: np.ndarray, jb: np.ndarr
     noise[6:9, 6:9] = innovation
     joint = transition @ joint @ transition.T + noise
     return 0.5 * (joint + joint.T)
+
+
+def nees(error: np.ndarray, covariance: np.ndarray) -> float:
+    """Return ``e^T P^-1 e`` with the angle of ``e`` wrapped to (-pi, pi]."""
+    error = np.array(error, dtype=float)
+    error[2] = se2.wrap_angle(error[2])
+    return float(error @ np.linalg.solve(covariance, error))
