@@ -23,7 +23,7 @@ from laser_odom.core.configuration.pipeline import GlobalSearchConfig, PipelineC
 from laser_odom.core.evaluation.benchmark import benchmark_run
 from laser_odom.core.matchers import MatchResult
 from laser_odom.core.motion.blind_prior import Prediction
-from laser_odom.core.pipeline.odometry import EVENTS
+from laser_odom.core.pipeline.estimate import EVENTS
 from laser_odom.core.registration.acceptance import judge_match, rejected_covariance
 from laser_odom.core.registration.registrar import EVIDENCE_EVENTS, Registration
 from laser_odom.core.search import SearchWindow

@@ -15,7 +15,7 @@ from laser_odom.core import se2
 from laser_odom.core.configuration.node import (
     check_change, NodeConfig, parameter_specs, settings_from_params)
 from laser_odom.core.parameters import flatten
-from laser_odom.core.pipeline.odometry import OdometryEstimate
+from laser_odom.core.pipeline.estimate import OdometryEstimate
 from laser_odom.core.scan.laser_scan import LaserMounting, LaserScan, scan_to_points
 from laser_odom.ros.conversions import (
     covariance_3x3, covariance_6x6, imu_yaw_from_msg, mounting_from_transform, ns_to_stamp,

@@ -27,7 +27,7 @@ import numpy as np
 from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg, PointCloud2, PointField
 
 from laser_odom.core import se2
-from laser_odom.core.pipeline.odometry import OdometryEstimate
+from laser_odom.core.pipeline.estimate import OdometryEstimate
 from laser_odom.core.scan.laser_scan import LaserMounting, LaserScan
 
 UNOBSERVED_VARIANCE = 1.0e6

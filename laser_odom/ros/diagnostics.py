@@ -27,7 +27,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
 
 from laser_odom.core.configuration.node import NodeConfig
-from laser_odom.core.pipeline.odometry import EVENTS, OUTCOMES
+from laser_odom.core.pipeline.estimate import EVENTS, OUTCOMES
 from laser_odom.core.preprocess.validation import REJECTIONS
 
 

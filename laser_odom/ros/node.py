@@ -44,7 +44,8 @@ from sensor_msgs.msg import LaserScan as LaserScanMsg, PointCloud2
 from std_srvs.srv import Trigger
 
 from laser_odom.core.events import EventLog
-from laser_odom.core.pipeline.odometry import OdometryEstimate, OdometryPipeline
+from laser_odom.core.pipeline.estimate import OdometryEstimate
+from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.pipeline.warmup import warm_up
 from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
 from laser_odom.io.text_output import reader_may_leave

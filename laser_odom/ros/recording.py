@@ -16,7 +16,7 @@ from nav_msgs.msg import Odometry
 from rclpy.serialization import serialize_message
 
 from laser_odom.core.configuration.node import NodeConfig
-from laser_odom.core.pipeline.odometry import OdometryEstimate
+from laser_odom.core.pipeline.estimate import OdometryEstimate
 from laser_odom.ros.conversions import ns_to_stamp, pose_stamped_from_odometry, published_messages
 
 ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'

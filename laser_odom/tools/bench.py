@@ -44,9 +44,9 @@ from laser_odom.core.datasets import (
     subsampled_datasets)
 from laser_odom.core.evaluation.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    REAL_REFERENCE_NOISE, REFERENCE_MODES, search_timing, SearchTimingRow, SIMULATED,
-    simulated_scanner, wheel_odometry_row)
+    REAL_REFERENCE_NOISE, REFERENCE_MODES, SIMULATED, simulated_scanner, wheel_odometry_row)
 from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE, ReferenceNoise
+from laser_odom.core.evaluation.search_timing import search_timing, SearchTimingRow
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.parameters import ParameterError
 from laser_odom.core.trajectory import Dataset

@@ -11,7 +11,8 @@ from typing import Sequence
 import numpy as np
 
 from laser_odom.core.configuration.pipeline import GlobalSearchConfig
-from laser_odom.core.evaluation.benchmark import BenchRow, SearchTimingRow, WHEEL_ODOMETRY
+from laser_odom.core.evaluation.benchmark import BenchRow, WHEEL_ODOMETRY
+from laser_odom.core.evaluation.search_timing import SearchTimingRow
 from laser_odom.io.bag_dataset import BAG_GROUND_TRUTH
 
 COLUMNS = [

@@ -12,7 +12,7 @@ import numpy as np
 
 from laser_odom.core.evaluation.coverage import reference_coverage
 from laser_odom.core.evaluation.metrics import distance_travelled, evaluate
-from laser_odom.core.pipeline.odometry import OUTCOMES
+from laser_odom.core.pipeline.estimate import OUTCOMES
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_writer import write_message_bag
 from laser_odom.io.tum import read_tum, TumFormatError, write_tum

@@ -1,7 +1,8 @@
 """The odometry pipeline on top: one scan's path, and what drives it.
 
 ``odometry`` (:class:`OdometryPipeline`: validate, predict, register, judge, integrate),
-``announce`` (the counted, throttled lines that say why), ``runner`` (the pipeline over
+``estimate`` (what it returns per scan and the names of what it counts), ``announce``
+(the counted, throttled lines that say why), ``runner`` (the pipeline over
 recorded scans: replay, benchmark, tests) and ``warmup`` (compile the kernels before
 the first scan).
 

@@ -1,8 +1,9 @@
-"""The scan-to-scan odometry pipeline that the node and the replay harness both drive.
+"""The odometry pipeline that the node and the replay harness both drive.
 
 Per scan: preprocess (validate, convert to base-frame points), predict the motion
 (constant velocity or an external prior) and decide whether that prediction can be
-trusted, register against the reference scan (the matcher from the prediction, the
+trusted, register against the reference (the previous scan or keyframe, or the local
+map with ``reference: local_map``: the matcher from the prediction, the
 global search when the prediction or the match fails), judge the match (acceptance,
 ambiguity, degeneracy), then integrate pose, twist and covariance.
 """
@@ -10,7 +11,6 @@ ambiguity, degeneracy), then integrate pose, twist and covariance.
 from __future__ import annotations
 
 from collections import Counter, deque
-from dataclasses import dataclass
 import time
 
 import numpy as np
@@ -18,59 +18,24 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
-from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
+from laser_odom.core.matchers import matcher_class, ScanMatcher
 from laser_odom.core.motion.model import MotionModel
 from laser_odom.core.pipeline.announce import say_why
-from laser_odom.core.preprocess.deskew import deskew_change, DESKEW_EVENTS, deskewed, twist_of_step
+from laser_odom.core.pipeline.estimate import OdometryEstimate
+from laser_odom.core.preprocess.deskew import deskew_change, deskewed, twist_of_step
 from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
 from laser_odom.core.registration.acceptance import judge_match
-from laser_odom.core.registration.map_registrar import JudgedMatch, MAP_EVENTS, MapRegistrar
-from laser_odom.core.registration.registrar import EVIDENCE_EVENTS, Registrar, SEARCH_TRIGGERS
+from laser_odom.core.registration.map_registrar import JudgedMatch, MapRegistrar
+from laser_odom.core.registration.registrar import Registrar
 from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
 from laser_odom.core.uncertainty.pose_uncertainty import PoseUncertainty, step_error
 
 TIMING_WINDOW = 1000
 """Number of recent per-scan processing times kept for statistics."""
 
-OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
-"""Counters of what became of the scans; every other counter is a skip reason, a
-rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
-
-EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
-    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + EVIDENCE_EVENTS + tuple(
-    DESKEW_EVENTS) + MAP_EVENTS
-"""Counters of events that do not skip the scan: a missing or dropped prior, a clock
-jump, an ambiguous match, each reason the global search ran, sweep timing that was
-repaired or ignored, and what the local map did."""
-
 DESKEW_TOLERANCE = 0.02
 """Match again when the measured twist would move the de-skewed points more than this
 [m] (a bound over the sweep; below it the twist differs by less than matching noise)."""
-
-
-@dataclass
-class OdometryEstimate:
-    """Odometry after one scan: pose of the base in the odom frame, and its twist.
-
-    ``twist`` is ``[vx, vy, wz]`` in the base frame (REP-105); covariances are 3x3 in
-    ``[x, y, yaw]``. ``status`` is ``initialized``, ``matched``, ``degenerate`` or
-    ``rejected``; ``processing_time`` is seconds spent on this scan.
-    """
-
-    stamp_ns: int
-    pose: np.ndarray
-    pose_covariance: np.ndarray
-    twist: np.ndarray
-    twist_covariance: np.ndarray
-    status: str
-    match: MatchResult | None = None
-    processing_time: float = 0.0
-    scan_points: np.ndarray | None = None
-    """The scan's points in the base frame (N, 2), as matched."""
-    step_covariance: np.ndarray | None = None
-    """Covariance (3x3) of the match this pose comes from (the step from the previous
-    scan when matching scan to scan), before it is divided by dt^2 into the twist's;
-    None for an ``initialized`` scan."""
 
 
 class OdometryPipeline:

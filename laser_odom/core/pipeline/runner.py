@@ -13,7 +13,8 @@ from typing import Callable, Iterable
 import numpy as np
 
 from laser_odom.core.motion.priors import PriorFeed
-from laser_odom.core.pipeline.odometry import OdometryEstimate, OdometryPipeline
+from laser_odom.core.pipeline.estimate import OdometryEstimate
+from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import Trajectory
 

@@ -32,7 +32,8 @@ from laser_odom.core.configuration.node import settings_from_params
 from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
 from laser_odom.core.motion.priors import PriorFeed
-from laser_odom.core.pipeline.odometry import OdometryEstimate, OdometryPipeline
+from laser_odom.core.pipeline.estimate import OdometryEstimate
+from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.pipeline.runner import run_pipeline
 from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.core.trajectory import RecordedBag, Trajectory

@@ -1,0 +1,53 @@
+"""What the pipeline gives back per scan, and the names of what it counts.
+
+:class:`OdometryEstimate` is the one result the node turns into messages, the replay
+into a trajectory and the benchmark into scores; :data:`OUTCOMES` and :data:`EVENTS`
+name the counters the diagnostics and the replay's report show.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from laser_odom.core.matchers import MatchResult
+from laser_odom.core.preprocess.deskew import DESKEW_EVENTS
+from laser_odom.core.registration.map_registrar import MAP_EVENTS
+from laser_odom.core.registration.registrar import EVIDENCE_EVENTS, SEARCH_TRIGGERS
+
+OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
+"""Counters of what became of the scans; every other counter is a skip reason, a
+rejection reason (``rejected_<reason>``) or one of the :data:`EVENTS`."""
+
+EVENTS = ('prior_missing', 'scan_gap', 'time_jump_back', 'ambiguous') + tuple(
+    f'search_{trigger}' for trigger in SEARCH_TRIGGERS) + EVIDENCE_EVENTS + tuple(
+    DESKEW_EVENTS) + MAP_EVENTS
+"""Counters of events that do not skip the scan: a missing or dropped prior, a clock
+jump, an ambiguous match, each reason the global search ran, sweep timing that was
+repaired or ignored, and what the local map did."""
+
+
+@dataclass
+class OdometryEstimate:
+    """Odometry after one scan: pose of the base in the odom frame, and its twist.
+
+    ``twist`` is ``[vx, vy, wz]`` in the base frame (REP-105); covariances are 3x3 in
+    ``[x, y, yaw]``. ``status`` is ``initialized``, ``matched``, ``degenerate`` or
+    ``rejected``; ``processing_time`` is seconds spent on this scan.
+    """
+
+    stamp_ns: int
+    pose: np.ndarray
+    pose_covariance: np.ndarray
+    twist: np.ndarray
+    twist_covariance: np.ndarray
+    status: str
+    match: MatchResult | None = None
+    processing_time: float = 0.0
+    scan_points: np.ndarray | None = None
+    """The scan's points in the base frame (N, 2), as matched."""
+    step_covariance: np.ndarray | None = None
+    """Covariance (3x3) of the match this pose comes from (the step from the previous
+    scan when matching scan to scan), before it is divided by dt^2 into the twist's;
+    None for an ``initialized`` scan."""
