@@ -3,6 +3,7 @@
 Simulated worlds with ground truth; the real logs are in ``test_real_data.py``.
 """
 
+from dataclasses import replace
 import math
 
 import numpy as np
@@ -15,8 +16,11 @@ from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.pipeline.runner import run_pipeline
 from laser_odom.core.registration.acceptance import MatchVerdict
-from laser_odom.core.registration.map_registrar import steps_agree
+from laser_odom.core.registration.map_registrar import JudgedMatch, steps_agree
+from laser_odom.core.registration.registrar import Registration
 from laser_odom.core.simulation import simulate
+from laser_odom.core.uncertainty.pose_uncertainty import (
+    CHI2_3DOF_999, nees, step_error, StepErrorModel)
 
 MATCHERS = ('plicp', 'nicp', 'imls')
 
@@ -161,3 +165,45 @@ def test_a_featureless_corridor_does_not_run_away_against_the_map():
         ate(run, 'imls', reference) for reference in ('scan', 'local_map'))
     assert scan_failed <= 1 and map_failed <= 1, (scan, scan_failed, mapped, map_failed)
     assert mapped <= 1.1 * scan, (scan, mapped)
+
+
+@pytest.mark.parametrize('matcher', ('icp', 'plicp'))
+def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office, matcher):
+    # fr079, icp: a map match 10 deg off (from a prediction 8 deg off) was judged clean
+    # at twice the usual residual and published with a covariance of 0.5 deg. The
+    # previous scan, matched from the same prediction, is the second opinion: when it
+    # disagrees, the map's step keeps a covariance that covers the other.
+    pipeline = OdometryPipeline(config(matcher), events=EventLog(lambda message: None))
+    run_pipeline(pipeline, office.scans[:60])
+    registrar = pipeline.map_registrar
+    previous = registrar.map.previous_scan
+    current, _ = pipeline.validator.check(office.scans[60])
+    truth = se2.relative(office.reference.poses[59], office.reference.poses[60])
+    view = registrar.view(pipeline.pose, office.scans[60].stamp_ns)
+    tight = np.diag([1e-6, 1e-6, 1e-6])
+    against_map, _ = pipeline.registrar.try_local(pipeline.matcher, view, current, truth,
+                                                  pipeline.config)
+
+    def map_match(pose: np.ndarray) -> JudgedMatch:
+        """Return the map match, moved to ``pose`` and judged clean and tight."""
+        moved = Registration(replace(against_map.match, pose=np.asarray(pose, dtype=float)))
+        return JudgedMatch(view, pipeline.registrar, moved, MatchVerdict(moved.match.pose,
+                                                                         tight, 'matched'))
+
+    wrong = map_match(se2.compose(truth, se2.pose(0.0, 0.0, 0.17)))
+    judged = registrar._second_opinion(pipeline.matcher, previous, current, truth,
+                                       pipeline.config, wrong)
+    assert judged.from_map and np.array_equal(judged.verdict.pose, wrong.verdict.pose)
+    covariance, model = step_error('matched', judged.verdict.covariance,
+                                   pipeline.matcher.config, True, judged.doubt)
+    error = truth - wrong.verdict.pose
+    error[2] = se2.wrap_angle(error[2])
+    # Covered as the evaluation counts it (a silent failed step is one outside the
+    # 99.9 % bound); the verdict's own covariance was far from it.
+    assert nees(error, covariance) <= CHI2_3DOF_999 < nees(error, tight), (error, covariance)
+    assert model == StepErrorModel()  # ignorance: it adds up, white
+    assert pipeline.counters['map_disputed'] == 1
+    right = map_match(truth)
+    assert registrar._second_opinion(pipeline.matcher, previous, current, truth,
+                                     pipeline.config, right) is right
+    assert pipeline.counters['map_disputed'] == 1

@@ -271,7 +271,8 @@ class OdometryPipeline:
         registration, verdict = judged.registration, judged.verdict
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         step_covariance, model = step_error(judged.verdict.status, judged.verdict.covariance,
-                                            self.matcher.config, judged.from_map)
+                                            self.matcher.config, judged.from_map,
+                                            judged.doubt)
         self.scans_after_keyframe += 1
         self.uncertainty = self.keyframe_uncertainty.propagate(
             self.keyframe_pose, verdict.pose, step_covariance, model,

@@ -35,10 +35,12 @@ from laser_odom.core.registration.registrar import Registrar, Registration
 from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
 from laser_odom.core.uncertainty.pose_uncertainty import CHI2_3DOF_999, nees
 
-MAP_EVENTS = ('map_fallback', 'map_restarted')
+MAP_EVENTS = ('map_fallback', 'map_restarted', 'map_disputed')
 """Counted events of map matching: a step taken from the previous scan because it
 fitted better than the map (``map_fallback``), the map started again from the current
-scan (``map_restarted``: after a rejected match, or scans in a row fitting it poorly)."""
+scan (``map_restarted``: after a rejected match, or scans in a row fitting it poorly),
+a map match that fitted poorly and that the previous scan contradicted
+(``map_disputed``: its covariance covers both)."""
 
 STATUS_RANK = {'rejected': 0, 'degenerate': 1, 'matched': 2}
 """Order of the verdicts, worst first."""
@@ -56,6 +58,10 @@ class JudgedMatch(NamedTuple):
     found: Registration | None = None
     """The match against the previous scan that a map match was refined from (None
     when the map match started from the prediction)."""
+    doubt: np.ndarray | None = None
+    """Covariance (3x3) the step's error may have beyond the verdict's: ``d d^T`` of
+    the difference ``d`` to the previous scan's match when the two disagreed
+    (``map_disputed``); None when nothing disputes the match."""
 
 
 class MapRegistrar:
@@ -108,7 +114,12 @@ class MapRegistrar:
             if passed:
                 verdict = judge_match(registration, guess, config, scale)
                 if clean_match(registration, verdict):
-                    return JudgedMatch(view, registrar, registration, verdict)
+                    judged = JudgedMatch(view, registrar, registration, verdict)
+                    if previous is None or fits_usual(local, registrar.usual.residual(),
+                                                      registrar.usual.inlier_ratio()):
+                        return judged
+                    return self._second_opinion(matcher, previous, current, guess, config,
+                                                judged)
             if previous is not None:
                 registration, passed = self.scan_registrar.try_local(
                     matcher, previous, current, guess, config)
@@ -127,6 +138,48 @@ class MapRegistrar:
         if match_rank(second, second_verdict) > match_rank(registration, verdict):
             return self._fallback(previous, second, second_verdict)
         return JudgedMatch(view, registrar, registration, verdict)
+
+    def _second_opinion(self, matcher: ScanMatcher, previous: ScanPoints,
+                        current: ScanPoints, guess: se2.Pose, config: PipelineConfig,
+                        judged: JudgedMatch) -> JudgedMatch:
+        """Check a clean map match that fits worse than usual against the previous scan.
+
+        A match that pairs fewer points or leaves a larger residual than map matches
+        usually do (:func:`.local_map.reference.fits_usual`) may have settled in a wrong
+        minimum of the map from a poor prediction (fr079, icp: 10 deg off from a
+        prediction 8 deg off, at twice the usual residual, judged clean and published
+        with a covariance of 0.5 deg). The previous scan, matched from the same
+        prediction, is a second opinion. When its match is clean, fits as its matches
+        usually do, and disagrees with the map's beyond both covariances
+        (:func:`steps_agree`), the step is in doubt; neither is the better evidence
+        (taking the scan's instead made mit-csail's plicp worse: a clean scan match
+        0.2 m off against a correct map match). The map's step stands, its covariance
+        widened by ``d d^T`` (``d`` the difference of the two steps, the
+        :attr:`JudgedMatch.doubt`) so that it covers both, and the doubt is said
+        (``map_disputed``).
+        """
+        scale = current.length_scale
+        registration, passed = self.scan_registrar.try_local(matcher, previous, current,
+                                                             guess, config)
+        if not passed:
+            return judged
+        verdict = judge_match(registration, guess, config, scale)
+        usual = self.scan_registrar.usual
+        if not (clean_match(registration, verdict)
+                and fits_usual(registration.match, usual.residual(), usual.inlier_ratio())
+                and not steps_agree(verdict, judged.verdict,
+                                    matcher.config.map_covariance_scale)):
+            return judged
+        difference = np.asarray(verdict.pose, dtype=float) - judged.verdict.pose
+        difference[2] = se2.wrap_angle(difference[2])
+        match = judged.registration.match
+        self.events.warn('map_disputed', (
+            f'the match against the local map (residual {match.residual:.3f} m, '
+            f'{match.inlier_ratio:.0%} paired) and the one against the previous scan '
+            f'differ by {np.hypot(difference[0], difference[1]):.3f} m, '
+            f'{np.degrees(abs(difference[2])):.1f} deg: the step keeps the map match, '
+            'with a covariance that covers both'))
+        return judged._replace(doubt=np.outer(difference, difference))
 
     def _register_untrusted(self, matcher: ScanMatcher, registrar: Registrar,
                             view: ScanPoints, previous: ScanPoints, current: ScanPoints,

@@ -141,7 +141,8 @@ class StepErrorModel:
 
 
 def step_error(status: str, covariance: np.ndarray, matcher_config: object,
-               from_map: bool = False) -> tuple[np.ndarray, StepErrorModel]:
+               from_map: bool = False, doubt: np.ndarray | None = None
+               ) -> tuple[np.ndarray, StepErrorModel]:
     """Return a judged match's step covariance and how its error compounds.
 
     Only a good (``matched``) match's error is noise that the next match cancels (the
@@ -149,12 +150,16 @@ def step_error(status: str, covariance: np.ndarray, matcher_config: object,
     (no information along a corridor) or of a rejected one (the prediction) is
     ignorance, which stays: those compound white. A match against the local map
     (``from_map``) has the matcher's ``map_covariance_scale`` and shares all but a
-    white rest of its error with the next (:meth:`StepErrorModel.of_map`).
+    white rest of its error with the next (:meth:`StepErrorModel.of_map`). A
+    ``doubt`` (two references that disagreed on the step) is ignorance too: it is
+    added, and the step compounds white.
     """
     if status == 'rejected':
         return covariance, StepErrorModel()
     if from_map:
         covariance = covariance * matcher_config.map_covariance_scale
+    if doubt is not None:
+        return covariance + doubt, StepErrorModel()
     if status != 'matched':
         return covariance, StepErrorModel()
     return covariance, (StepErrorModel.of_map(matcher_config) if from_map
