@@ -174,7 +174,8 @@ class MapRegistrar:
         difference[2] = se2.wrap_angle(difference[2])
         match = judged.registration.match
         self.events.warn('map_disputed', (
-            f'the match against the local map (residual {match.residual:.3f} m, '
+            f'at t={current.stamp_ns * 1e-9:.3f} the match against the local map '
+            f'(residual {match.residual:.3f} m, '
             f'{match.inlier_ratio:.0%} paired) and the one against the previous scan '
             f'differ by {np.hypot(difference[0], difference[1]):.3f} m, '
             f'{np.degrees(abs(difference[2])):.1f} deg: the step keeps the map match, '
