@@ -49,5 +49,6 @@ class OdometryEstimate:
     """The scan's points in the base frame (N, 2), as matched."""
     step_covariance: np.ndarray | None = None
     """Covariance (3x3) of the match this pose comes from (the step from the previous
-    scan when matching scan to scan), before it is divided by dt^2 into the twist's;
-    None for an ``initialized`` scan."""
+    scan, the keyframe or the previous pose on the local map, with the doubt of a
+    disputed map match added), before it is divided by dt^2 into the twist's; None for
+    an ``initialized`` scan."""
