@@ -121,12 +121,10 @@ class MapRegistrar:
                     return self._second_opinion(matcher, previous, current, guess, config,
                                                 judged)
             if previous is not None:
-                registration, passed = self.scan_registrar.try_local(
-                    matcher, previous, current, guess, config)
-                if passed:
-                    verdict = judge_match(registration, guess, config, scale)
-                    if clean_match(registration, verdict):
-                        return self._fallback(previous, registration, verdict)
+                against_scan = self._clean_scan_match(matcher, previous, current, guess,
+                                                      config)
+                if against_scan is not None:
+                    return self._fallback(previous, *against_scan)
         registration = registrar.register(matcher, view, current, guess, config, untrusted,
                                           local)
         verdict = judge_match(registration, guess, config, scale)
@@ -158,15 +156,12 @@ class MapRegistrar:
         :attr:`JudgedMatch.doubt`) so that it covers both, and the doubt is said
         (``map_disputed``).
         """
-        scale = current.length_scale
-        registration, passed = self.scan_registrar.try_local(matcher, previous, current,
-                                                             guess, config)
-        if not passed:
+        against_scan = self._clean_scan_match(matcher, previous, current, guess, config)
+        if against_scan is None:
             return judged
-        verdict = judge_match(registration, guess, config, scale)
+        registration, verdict = against_scan
         usual = self.scan_registrar.usual
-        if not (clean_match(registration, verdict)
-                and fits_usual(registration.match, usual.residual(), usual.inlier_ratio())
+        if not (fits_usual(registration.match, usual.residual(), usual.inlier_ratio())
                 and not steps_agree(verdict, judged.verdict,
                                     matcher.config.map_covariance_scale)):
             return judged
@@ -181,6 +176,21 @@ class MapRegistrar:
             f'{np.degrees(abs(difference[2])):.1f} deg: the step keeps the map match, '
             'with a covariance that covers both'))
         return judged._replace(doubt=np.outer(difference, difference))
+
+    def _clean_scan_match(self, matcher: ScanMatcher, previous: ScanPoints,
+                          current: ScanPoints, guess: se2.Pose, config: PipelineConfig
+                          ) -> tuple[Registration, MatchVerdict] | None:
+        """Return the previous scan's match from a trusted ``guess`` if clean, else None.
+
+        The match passed the checks of a match from a prediction
+        (:meth:`.Registrar.try_local`) and is judged clean (:func:`clean_match`).
+        """
+        registration, passed = self.scan_registrar.try_local(matcher, previous, current,
+                                                             guess, config)
+        if not passed:
+            return None
+        verdict = judge_match(registration, guess, config, current.length_scale)
+        return (registration, verdict) if clean_match(registration, verdict) else None
 
     def _register_untrusted(self, matcher: ScanMatcher, registrar: Registrar,
                             view: ScanPoints, previous: ScanPoints, current: ScanPoints,
