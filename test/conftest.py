@@ -34,8 +34,8 @@ def real_log(shared_data_dir) -> Callable[[str], Dataset]:
     def load(name: str) -> Dataset:
         if name not in cache:
             if name in subsampled:
-                base, k = subsampled[name]
-                cache[name] = load(base).every(k, name)
+                spec = subsampled[name]
+                cache[name] = spec.derive(load(spec.base), name)
             elif name in found:
                 cache[name] = load_dataset(found[name], name=name)
             else:

@@ -40,13 +40,14 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 
 from laser_odom.core.configuration.pipeline import pipeline_config_from_params
 from laser_odom.core.datasets import (
-    DatasetError, discover_datasets, KNOWN_DATASETS, load_dataset, SUBSAMPLED_DATASETS,
-    subsampled_datasets)
+    as_received, DatasetError, discover_datasets, KNOWN_DATASETS, load_dataset,
+    RANGE_NOISE_M, SUBSAMPLED_DATASETS, subsampled_datasets, with_range_noise)
 from laser_odom.core.evaluation.benchmark import (
     BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
     REAL_REFERENCE_NOISE, REFERENCE_MODES, SIMULATED, simulated_scanner, wheel_odometry_row)
 from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE, ReferenceNoise
 from laser_odom.core.evaluation.search_timing import search_timing, SearchTimingRow
+from laser_odom.core.evaluation.spread import spread_rows
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.parameters import ParameterError
 from laser_odom.core.trajectory import Dataset
@@ -56,7 +57,8 @@ from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import reader_may_leave, write_text_atomically
 from laser_odom.tools.bench_table import (
-    format_nees_table, format_search_table, format_table, machine_line, provenance)
+    format_nees_table, format_search_table, format_spread_table, format_table, machine_line,
+    provenance)
 from laser_odom.tools.quiet import warnings_silenced
 
 LOGGER = logging.getLogger('laser_odom.tools.bench')
@@ -140,6 +142,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="the node's parameter file: every row runs with its settings "
                              '(except matcher and prior, which each row sets, and deskew '
                              'when --deskew is given)')
+    parser.add_argument('--perturb', type=int, default=0, metavar='N',
+                        help='run N copies of every dataset, each with Gaussian noise of '
+                             '--range-noise on every range (seeds 1..N), and print the '
+                             'median [worst] of each figure over the copies (default 0: '
+                             'the dataset once, as received)')
+    parser.add_argument('--range-noise', type=float, default=RANGE_NOISE_M, metavar='M',
+                        help=f'range noise of a --perturb copy [m] (default {RANGE_NOISE_M:g})')
     parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
     parser.add_argument('--no-progress', action='store_true',
                         help='no progress bar (it is drawn on stderr only when stderr is '
@@ -200,8 +209,9 @@ def dataset_loaders(data_dir: Path) -> dict[str, Callable[[], Dataset]]:
         for name, path in found.items():
             loaders[name] = lru_cache(maxsize=1)(
                 lambda path=path, name=name: load_dataset(path, name=name))
-        for name, (base, k) in subsampled_datasets(found).items():
-            loaders[name] = lambda name=name, base=loaders[base], k=k: base().every(k, name)
+        for name, spec in subsampled_datasets(found).items():
+            loaders[name] = (lambda name=name, base=loaders[spec.base], spec=spec:
+                             spec.derive(base(), name))
     return loaders
 
 
@@ -275,28 +285,59 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
     rows: list[BenchRow] = []
     searches: list[SearchTimingRow] = []
     progress = progress_wanted(args)
+    if args.perturb < 0 or not (math.isfinite(args.range_noise) and args.range_noise >= 0.0):
+        raise ValueError('--perturb must be >= 0 and --range-noise a finite number >= 0')
     for name in names:
-        dataset = loaders[name]()
+        loaded = loaders[name]()
         noise = reference_noise(args, name)
-        has_odometry = len(dataset.odometry) > 0
-        if 'odom' in priors and has_odometry and len(dataset.reference):
-            rows.append(wheel_odometry_row(dataset))
-        for matcher in matchers:
-            for prior in priors:
-                if prior == 'odom' and not has_odometry:
-                    continue
-                for deskew, reference in itertools.product(deskews, references):
-                    label = ' '.join(filter(None, (name, matcher, prior, deskew, reference)))
-                    bar = ProgressBar(label, len(dataset.scans)) if progress else None
-                    config = pipeline_config_from_params({**values, 'matcher': matcher})
-                    if simulated_here(name):
-                        config = simulated_scanner(config)
-                    rows.append(benchmark_run(dataset, matcher, prior, progress=bar,
-                                              config=config, deskew=deskew,
-                                              reference_noise=noise, reference=reference))
+        for copy, dataset in dataset_copies(loaded, args.perturb, args.range_noise):
+            rows += _dataset_rows(dataset, copy, matchers, priors, deskews, references,
+                                  values, noise, progress)
         if not args.no_search_table:
-            searches.append(search_timing(dataset))
+            searches.append(search_timing(as_received(loaded)))
     return rows, searches
+
+
+def dataset_copies(dataset: Dataset, copies: int, sigma: float) -> list[tuple[int, Dataset]]:
+    """Return the dataset as the node receives it (copy 0), or ``copies`` noisy copies.
+
+    Every copy is what a bag of it holds (float32 LaserScan fields,
+    :func:`.datasets.variants.as_received`); copy k > 0 first has Gaussian noise of
+    ``sigma`` on every range, drawn from seed k.
+    """
+    if copies == 0:
+        return [(0, as_received(dataset))]
+    return [(seed, as_received(with_range_noise(dataset, seed, sigma)))
+            for seed in range(1, copies + 1)]
+
+
+def _dataset_rows(dataset: Dataset, copy: int, matchers: Sequence[str],
+                  priors: Sequence[str], deskews: Sequence[str | None],
+                  references: Sequence[str | None], values: Mapping[str, Any],
+                  noise: ReferenceNoise, progress: bool) -> list[BenchRow]:
+    """Run every matcher x prior x deskew x reference on one copy of a dataset."""
+    rows: list[BenchRow] = []
+    name = dataset.name
+    has_odometry = len(dataset.odometry) > 0
+    if copy <= 1 and 'odom' in priors and has_odometry and len(dataset.reference):
+        rows.append(wheel_odometry_row(dataset))
+    for matcher in matchers:
+        for prior in priors:
+            if prior == 'odom' and not has_odometry:
+                continue
+            for deskew, reference in itertools.product(deskews, references):
+                label = ' '.join(filter(None, (name, matcher, prior, deskew, reference,
+                                               f'copy {copy}' if copy else None)))
+                bar = ProgressBar(label, len(dataset.scans)) if progress else None
+                config = pipeline_config_from_params({**values, 'matcher': matcher})
+                if simulated_here(name):
+                    config = simulated_scanner(config)
+                row = benchmark_run(dataset, matcher, prior, progress=bar, config=config,
+                                    deskew=deskew, reference_noise=noise,
+                                    reference=reference)
+                row.copy = copy
+                rows.append(row)
+    return rows
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -318,10 +359,13 @@ def main_offline(args: argparse.Namespace) -> int:
         return 130
     if args.json is not None:  # first: a reader leaving the printed table loses nothing
         payload = {**provenance(), 'rows': [row.as_dict() for row in rows],
+                   'spread': [row.as_dict() for row in spread_rows(rows)],
                    'search': [row.as_dict() for row in searches]}
         write_text_atomically(args.json, json.dumps(payload, indent=2) + '\n')
     print(machine_line())
     print(format_table(rows))
+    if args.perturb:
+        print(format_spread_table(spread_rows(rows)))
     if args.nees:
         print(format_nees_table(rows))
     if searches:

@@ -13,6 +13,7 @@ import numpy as np
 from laser_odom.core.configuration.pipeline import GlobalSearchConfig
 from laser_odom.core.evaluation.benchmark import BenchRow, WHEEL_ODOMETRY
 from laser_odom.core.evaluation.search_timing import SearchTimingRow
+from laser_odom.core.evaluation.spread import SpreadRow
 from laser_odom.io.bag_dataset import BAG_GROUND_TRUTH
 
 COLUMNS = [
@@ -103,6 +104,38 @@ def format_table(rows: Sequence[BenchRow]) -> str:
         'previous scan or the local map'] + (
         [f'# n/a: no reference for {", ".join(unscored)} (--bag without --reference or '
          f'{BAG_GROUND_TRUTH}): timed only'] if unscored else []))
+
+
+SPREAD_COLUMNS = [
+    ('ate', 13, 3, 'ATE m'), ('drift_trans', 13, 2, 'drift %'),
+    ('failed', 9, 0, 'failed'), ('silent', 9, 0, 'silent'),
+    ('rpe_trans_mean', 15, 4, 'RPEt mean'), ('nees_integrated', 13, 2, 'NEES int'),
+    ('median_ms', 11, 2, 'med ms'),
+]
+"""Figures of the spread table: field, width, decimals, title."""
+
+SPREAD_KEYS = [('dataset', 25), ('matcher', 8), ('prior', 17), ('reference', 9),
+               ('copies', 6)]
+"""The spread table's key columns: field, width."""
+
+
+def format_spread_table(rows: Sequence[SpreadRow]) -> str:
+    """Return the median [worst] of each figure over the copies of every run."""
+    header = ' '.join([f'{title:<{width}}' for title, width in SPREAD_KEYS]
+                      + [f'{title:>{width}}' for _, width, _, title in SPREAD_COLUMNS])
+    lines = [header]
+    for row in rows:
+        values = row.as_dict()
+        lines.append(' '.join(
+            [f'{values[key]!s:<{width}}' for key, width in SPREAD_KEYS]
+            + [f'{row.cell(name, decimals):>{width}}'
+               for name, width, decimals, _ in SPREAD_COLUMNS]))
+    copies = sorted({row.copies for row in rows})
+    return '\n'.join(lines + [
+        f'# median [worst] over {"/".join(map(str, copies))} copies of each dataset, as '
+        'received (float32 LaserScan), with 1 mm of Gaussian noise on every range (one '
+        'value: all copies alike); figures as in the table of rows (NEES int: integrated '
+        'pose, about 3 when honest)'])
 
 
 NEES_COLUMNS = [

@@ -13,10 +13,13 @@ May import: ``se2``, ``scan``, ``trajectory``.
 from laser_odom.core.datasets.carmen import load_carmen
 from laser_odom.core.datasets.common import DatasetError
 from laser_odom.core.datasets.loader import (
-    dataset_format, dataset_name, discover_datasets, KNOWN_DATASETS, load_dataset,
-    SUBSAMPLED_DATASETS, subsampled_datasets)
+    dataset_format, dataset_name, discover_datasets, FAST_DATASETS, KNOWN_DATASETS,
+    load_dataset, SUBSAMPLED_DATASETS, subsampled_datasets)
 from laser_odom.core.datasets.matlab import load_mat
+from laser_odom.core.datasets.variants import (
+    as_received, DerivedSpec, RANGE_NOISE_M, restamped, with_range_noise)
 
-__all__ = ['DatasetError', 'KNOWN_DATASETS', 'SUBSAMPLED_DATASETS', 'dataset_format',
+__all__ = ['DatasetError', 'DerivedSpec', 'FAST_DATASETS', 'KNOWN_DATASETS', 'RANGE_NOISE_M',
+           'as_received', 'restamped', 'with_range_noise', 'SUBSAMPLED_DATASETS', 'dataset_format',
            'dataset_name', 'discover_datasets', 'load_carmen', 'load_dataset', 'load_mat',
            'subsampled_datasets']

@@ -7,8 +7,9 @@ the file is joined as the reference when its ``# columns:`` header says it index
 kind of file (``raw_scan_index`` for CARMEN logs, ``mat_row_index`` for .mat files), so
 ``intel/intel-corrected.log.gz`` (the Intel keyframe log, ``intel-kf``) does not pick
 up the keyframes meant for ``intel/scan_intel.mat``; a GMapping-corrected log keeps its
-own per-scan reference. Subsampled datasets (``fr079/5``: every 5th scan) are derived
-from a loaded one with :meth:`Dataset.every`.
+own per-scan reference. Derived datasets (``fr079/5``: every 5th scan;
+``fr079/5-fast``: the same re-stamped 0.1 s apart) come from a loaded one through
+:class:`~laser_odom.core.datasets.variants.DerivedSpec`.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from laser_odom.core.datasets.carmen import load_carmen
 from laser_odom.core.datasets.common import DatasetError
 from laser_odom.core.datasets.keyframes import KEYFRAMES_FILE, keyframes_index_kind
 from laser_odom.core.datasets.matlab import load_mat
+from laser_odom.core.datasets.variants import DerivedSpec
 from laser_odom.core.trajectory import Dataset
 
 #: The real benchmark datasets: name -> path under the data directory. The ccny bag has
@@ -29,14 +31,25 @@ KNOWN_DATASETS: dict[str, str] = {
     'intel': 'intel/scan_intel.mat',
     'intel-kf': 'intel/intel-corrected.log.gz',
 }
-#: Large-motion datasets: every k-th scan of a known one (``name: (known name, k)``).
-#: fr079's scans then lie 0.5 m / 10 deg (k = 5), 1 m / 19 deg (k = 10, 1-2 s) or
-#: 2 m / 38 deg apart (k = 20, 2-5 s; up to 2.3 m and 166 deg).
-SUBSAMPLED_DATASETS: dict[str, tuple[str, int]] = {
-    'fr079/5': ('fr079', 5),
-    'fr079/10': ('fr079', 10),
-    'fr079/20': ('fr079', 20),
+#: Large-motion datasets derived from a known one (``name: DerivedSpec``): every k-th
+#: scan (fr079's scans then lie 0.5 m / 10 deg (k = 5), 1 m / 19 deg (k = 10, 1-2 s) or
+#: 2 m / 38 deg apart (k = 20, 2-5 s; up to 2.3 m and 166 deg)), and the "fast robot"
+#: datasets: the same scans (intel-kf: its keyframes, 0.4-4 s apart) re-stamped 0.1 s
+#: apart, what a robot 5-10x faster records at 10 Hz, so that the constant-velocity
+#: prediction is trusted on large steps.
+FAST_PERIOD = 0.1
+"""Seconds between the scans of a re-stamped "fast robot" dataset (10 Hz)."""
+
+SUBSAMPLED_DATASETS: dict[str, DerivedSpec] = {
+    'fr079/5': DerivedSpec('fr079', 5),
+    'fr079/10': DerivedSpec('fr079', 10),
+    'fr079/20': DerivedSpec('fr079', 20),
+    'fr079/5-fast': DerivedSpec('fr079', 5, FAST_PERIOD),
+    'fr079/10-fast': DerivedSpec('fr079', 10, FAST_PERIOD),
+    'intel-kf-fast': DerivedSpec('intel-kf', 1, FAST_PERIOD),
 }
+FAST_DATASETS = tuple(name for name, spec in SUBSAMPLED_DATASETS.items() if spec.period)
+"""The re-stamped "fast robot" datasets."""
 CARMEN_SUFFIXES = ('.clf', '.log')
 MAT_SUFFIXES = ('.mat',)
 _KEYFRAME_KINDS = {'carmen': 'raw_scan_index', 'mat': 'mat_row_index'}
@@ -97,10 +110,9 @@ def load_dataset(path: Path | str, name: str | None = None,
     return loader(path, name=name or dataset_name(path), keyframes=keyframes, strict=strict)
 
 
-def subsampled_datasets(found: dict[str, Path]) -> dict[str, tuple[str, int]]:
-    """Return the subsampled datasets whose base dataset is among ``found``."""
-    return {name: (base, k) for name, (base, k) in SUBSAMPLED_DATASETS.items()
-            if base in found}
+def subsampled_datasets(found: dict[str, Path]) -> dict[str, DerivedSpec]:
+    """Return the derived datasets whose base dataset is among ``found``."""
+    return {name: spec for name, spec in SUBSAMPLED_DATASETS.items() if spec.base in found}
 
 
 def discover_datasets(data_dir: Path | str) -> dict[str, Path]:

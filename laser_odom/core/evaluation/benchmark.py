@@ -210,6 +210,9 @@ class BenchRow:
     """Rotational drift over the same segments [deg/m]."""
     drift_length: float = math.nan
     """Segment length of the drift [m]: 50, or shorter on a short log."""
+    copy: int = 0
+    """Which copy of the dataset ran: 0 the dataset as received, k > 0 the copy with
+    1 mm of range noise drawn from seed k (``laser_odom_bench --perturb``)."""
 
     def as_dict(self) -> dict:
         """Return the row as a JSON-friendly dict."""
