@@ -1,16 +1,17 @@
 """Start laser_odom_node with a parameter file, topic remappings and, optionally, RViz.
 
     ros2 launch laser_odom laser_odom.launch.py scan_topic:=/base_scan rviz:=true
-    ros2 launch laser_odom laser_odom.launch.py odom_topic:=laser_odom/odom \\
-        publish_tf:=false        # beside robot_localization (docs/robot_localization.md)
+    # beside robot_localization's EKF (docs/robot_localization.md):
+    ros2 launch laser_odom laser_odom.launch.py odom_topic:=laser_odom/odom publish_tf:=false
 
 Arguments: ``scan_topic``, ``odom_topic``, ``pose_topic``, ``wheel_odom_topic``,
-``params_file``, ``publish_tf``, ``reference``, ``namespace``, ``use_sim_time`` and
-``rviz`` (``ros2 launch laser_odom laser_odom.launch.py -s`` lists them with their
-defaults). ``publish_tf`` and ``reference`` left empty keep what the parameter file
-says; given, they override it. The node's other names (``imu``, ``~/reset``,
-``~/set_pose``, ``~/matched_scan``, ``~/local_map``) resolve under ``namespace`` and
-the node name ``laser_odom``; the shipped RViz file assumes the defaults (no namespace).
+``params_file``, ``publish_tf``, ``publish_debug``, ``reference``, ``namespace``,
+``use_sim_time`` and ``rviz`` (``ros2 launch laser_odom laser_odom.launch.py -s`` lists
+them with their defaults). ``publish_tf``, ``publish_debug`` and ``reference`` left
+empty keep what the parameter file says; given, they override it. The node's other
+names (``imu``, ``~/reset``, ``~/set_pose``, ``~/matched_scan``, ``~/local_map``)
+resolve under ``namespace`` and the node name ``laser_odom``; the shipped RViz file
+assumes the defaults (no namespace).
 """
 
 import os
@@ -25,7 +26,8 @@ from launch_ros.parameter_descriptions import ParameterValue
 
 PACKAGE = 'laser_odom'
 
-OVERRIDES = {'publish_tf': ('true', 'false'), 'reference': ('scan', 'local_map')}
+OVERRIDES = {'publish_tf': ('true', 'false'), 'publish_debug': ('true', 'false'),
+             'reference': ('scan', 'local_map')}
 """Node parameters that a launch argument sets when it is not empty, with their values."""
 
 
@@ -41,7 +43,7 @@ def odometry_node(context):
     for name in OVERRIDES:
         value = LaunchConfiguration(name).perform(context)
         if value:
-            parameters[name] = value == 'true' if name == 'publish_tf' else value
+            parameters[name] = value == 'true' if name.startswith('publish_') else value
     return [Node(
         package=PACKAGE,
         executable='laser_odom_node',
@@ -71,8 +73,8 @@ def generate_launch_description():
                         'beside wheel odometry on "odom", e.g. laser_odom/odom.'),
         DeclareLaunchArgument(
             'pose_topic', default_value='pose',
-            description='geometry_msgs/PoseStamped output, remapped from the node\'s '
-                        '"pose".'),
+            description='geometry_msgs/PoseStamped output, remapped from the '
+                        'node\'s "pose".'),
         DeclareLaunchArgument(
             'wheel_odom_topic', default_value='wheel_odom',
             description='nav_msgs/Odometry input of prior: odom, remapped onto the '
@@ -85,6 +87,10 @@ def generate_launch_description():
             'publish_tf', default_value='', choices=['', *OVERRIDES['publish_tf']],
             description='Broadcast odom -> base_link on /tf (false where an EKF '
                         'publishes it); empty: as the parameter file says.'),
+        DeclareLaunchArgument(
+            'publish_debug', default_value='', choices=['', *OVERRIDES['publish_debug']],
+            description='Publish the matched scan and (reference local_map) the local map '
+                        'for RViz; empty: as the parameter file says.'),
         DeclareLaunchArgument(
             'reference', default_value='', choices=['', *OVERRIDES['reference']],
             description='Match each scan against the previous scan or the local map; '

@@ -32,7 +32,8 @@ LAUNCH_FILE = ROOT / 'launch' / 'laser_odom.launch.py'
 RVIZ_FILE = ROOT / 'rviz' / 'laser_odom.rviz'
 PACKAGE = 'laser_odom'
 ARGUMENTS = {'scan_topic': 'scan', 'odom_topic': 'odom', 'pose_topic': 'pose',
-             'wheel_odom_topic': 'wheel_odom', 'publish_tf': '', 'reference': '',
+             'wheel_odom_topic': 'wheel_odom', 'publish_tf': '', 'publish_debug': '',
+             'reference': '',
              'namespace': '', 'use_sim_time': 'false', 'rviz': 'false'}
 """Launch arguments and their defaults (params_file defaults to the installed file)."""
 
@@ -356,9 +357,11 @@ def test_parameters_reach_the_node_with_their_types(launch_api):
 def test_publish_tf_and_reference_override_the_params_file_only_when_given(launch_api):
     """Empty (the default), the parameter file decides; given, they win over it."""
     description = load_launch_description()
-    config = launch_configuration(description, publish_tf='false', reference='local_map')
+    config = launch_configuration(description, publish_tf='false', reference='local_map',
+                                  publish_debug='true')
     files, inline = node_parameters(odometry_node(description, config), config)
-    assert inline == {'use_sim_time': False, 'publish_tf': False, 'reference': 'local_map'}
+    assert inline == {'use_sim_time': False, 'publish_tf': False, 'reference': 'local_map',
+                      'publish_debug': True}
     assert files == [config['params_file']]  # the overrides come after the file: they win
     config = launch_configuration(description, publish_tf='true', reference='scan')
     _, inline = node_parameters(odometry_node(description, config), config)
@@ -370,8 +373,9 @@ def test_publish_tf_and_reference_override_the_params_file_only_when_given(launc
     specs = {spec.name: spec for spec in parameter_specs()}
     declared = arguments_of(description)
     assert set(declared['reference'].choices) == {'', *specs['reference'].info.choices}
-    assert set(declared['publish_tf'].choices) == {'', 'true', 'false'}
-    assert isinstance(specs['publish_tf'].default, bool)
+    for name in ('publish_tf', 'publish_debug'):
+        assert set(declared[name].choices) == {'', 'true', 'false'}
+        assert isinstance(specs[name].default, bool)
 
 
 def test_rviz_is_optional_and_uses_the_shipped_config(launch_api, monkeypatch):
@@ -474,6 +478,7 @@ def test_empty_overrides_keep_the_params_file(launch_api, context, tmp_path):
     try:
         assert node.get_parameter('publish_tf').value is False
         assert node.get_parameter('reference').value == 'local_map'
+        assert node.get_parameter('publish_debug').value is False  # the node's default
     finally:
         node.destroy_node()
 
@@ -527,9 +532,9 @@ def test_rviz_displays_match_the_node(launch_api, context):
     assert covariance['Value'] is True and covariance['Position']['Value'] is True
 
     description = load_launch_description()
-    config = launch_configuration(description, reference='local_map')
+    # The matched scan and the map, as node.md starts RViz.
+    config = launch_configuration(description, reference='local_map', publish_debug='true')
     args = ros_arguments(odometry_node(description, config), config)
-    args += ['-p', 'publish_debug:=true']  # the matched scan and the map, as node.md says
     published = {topic[name] for name in ('Odometry', 'Pose', 'MatchedScan', 'LocalMap')}
     node = start_node(context, args)
     try:
