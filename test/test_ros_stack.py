@@ -255,6 +255,12 @@ def test_local_map_arrives_in_odom_at_most_once_a_second_on_the_walls(run, datas
     assert clouds[-1].width > clouds[0].width
 
 
+def test_node_help_names_the_local_map():
+    from laser_odom.ros.usage import usage
+    line = next(line for line in usage().splitlines() if '~/local_map' in line)
+    assert 'sensor_msgs/PointCloud2' in line
+
+
 # --- the reference, named -----------------------------------------------------------------
 
 def test_start_up_line_names_the_reference(map_node, run):

@@ -33,9 +33,10 @@ UNKNOWN_TWIST_VARIANCE = 1.0e3
 
 The first scan after a start or reset has nothing to be matched against, so its
 zero twist is a placeholder, not a measurement: a filter fusing it must not take it
-for "standing still". 1e3 (a standard deviation of 32 m/s) is the order of the
-"ignore this" covariance robot_localization's documentation names, and the largest
-it takes without warning on a fused variable (it warns above 1e3)."""
+for "standing still". 1e3 (a standard deviation of 32 m/s) is the order
+robot_localization's migration guide names for a covariance meant to make a filter
+ignore a value, and the largest it takes on a fused variable without a diagnostics
+warning (it warns above 1e3; docs/robot_localization.md)."""
 
 
 @dataclass
