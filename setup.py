@@ -14,6 +14,9 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE_NAME]),
         ('share/' + PACKAGE_NAME, ['package.xml']),
         ('share/' + PACKAGE_NAME + '/config', glob('config/*.yaml')),
+        # robot_localization examples: not laser_odom parameter files, so kept apart
+        ('share/' + PACKAGE_NAME + '/config/robot_localization',
+         glob('config/robot_localization/*.yaml')),
         ('share/' + PACKAGE_NAME + '/launch', glob('launch/*.launch.py')),
         ('share/' + PACKAGE_NAME + '/rviz', glob('rviz/*.rviz')),
     ],

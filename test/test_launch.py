@@ -31,9 +31,15 @@ ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = ROOT / 'launch' / 'laser_odom.launch.py'
 RVIZ_FILE = ROOT / 'rviz' / 'laser_odom.rviz'
 PACKAGE = 'laser_odom'
-ARGUMENTS = {'scan_topic': 'scan', 'odom_topic': 'odom', 'namespace': '',
-             'use_sim_time': 'false', 'rviz': 'false'}
+ARGUMENTS = {'scan_topic': 'scan', 'odom_topic': 'odom', 'pose_topic': 'pose',
+             'wheel_odom_topic': 'wheel_odom', 'publish_tf': '', 'publish_debug': '',
+             'reference': '',
+             'namespace': '', 'use_sim_time': 'false', 'rviz': 'false'}
 """Launch arguments and their defaults (params_file defaults to the installed file)."""
+
+REMAPPED = {'scan': 'scan_topic', 'odom': 'odom_topic', 'pose': 'pose_topic',
+            'wheel_odom': 'wheel_odom_topic'}
+"""The node's topic names and the launch arguments remapping them (issue 39)."""
 
 
 # --- stand-in of the launch / launch_ros / ament_index_python API -------------------
@@ -59,6 +65,21 @@ class LaunchConfiguration:
 
     def __init__(self, variable_name, *, default=None):
         self.variable_name, self.default = variable_name, default
+
+    def perform(self, context):
+        return context.launch_configurations[self.variable_name]
+
+
+class OpaqueFunction:
+    """Stands in for launch.actions.OpaqueFunction: ``function(context, *args, **kwargs)``."""
+
+    def __init__(self, *, function, args=None, kwargs=None, **other):
+        self.function, self.args, self.kwargs = function, list(args or []), dict(kwargs or {})
+
+    def execute(self, config: dict) -> list:
+        """Return the actions the function gives in a context holding ``config``."""
+        context = types.SimpleNamespace(launch_configurations=dict(config))
+        return list(self.function(context, *self.args, **self.kwargs) or [])
 
 
 class IfCondition:
@@ -113,7 +134,8 @@ def launch_api(monkeypatch, tmp_path):
 
     modules = [
         stand_in_module('launch', LaunchDescription=LaunchDescription),
-        stand_in_module('launch.actions', DeclareLaunchArgument=DeclareLaunchArgument),
+        stand_in_module('launch.actions', DeclareLaunchArgument=DeclareLaunchArgument,
+                        OpaqueFunction=OpaqueFunction),
         stand_in_module('launch.conditions', IfCondition=IfCondition),
         stand_in_module('launch.substitutions', LaunchConfiguration=LaunchConfiguration),
         stand_in_module('launch_ros'),
@@ -146,10 +168,17 @@ def arguments_of(description) -> dict:
 
 
 def launch_configuration(description, **overrides) -> dict:
-    """Return the launch configuration: the declared defaults, then ``name:=value``."""
+    """Return the launch configuration: the declared defaults, then ``name:=value``.
+
+    A value outside an argument's ``choices`` is refused, as ``ros2 launch`` does.
+    """
     declared = arguments_of(description)
     unknown = set(overrides) - set(declared)
     assert not unknown, f'not declared by the launch file: {unknown}'
+    for name, value in overrides.items():
+        choices = declared[name].choices
+        if choices is not None and value not in choices:
+            raise ValueError(f'{name}:={value!r} is not one of {choices}')
     return {name: overrides.get(name, argument.default_value)
             for name, argument in declared.items()}
 
@@ -204,12 +233,20 @@ def ros_arguments(node: Node, config: dict) -> list[str]:
     return args
 
 
-def node_actions(description) -> list[Node]:
-    return [e for e in description.entities if isinstance(e, Node)]
+def node_actions(description, config: dict | None = None) -> list[Node]:
+    """Return the node actions, those of opaque functions made with ``config``."""
+    config = launch_configuration(description) if config is None else config
+    actions = []
+    for entity in description.entities:
+        if isinstance(entity, OpaqueFunction):
+            actions += entity.execute(config)
+        else:
+            actions.append(entity)
+    return [e for e in actions if isinstance(e, Node)]
 
 
-def odometry_node(description) -> Node:
-    nodes = [n for n in node_actions(description) if n.package == PACKAGE]
+def odometry_node(description, config: dict | None = None) -> Node:
+    nodes = [n for n in node_actions(description, config) if n.package == PACKAGE]
     assert len(nodes) == 1, nodes
     return nodes[0]
 
@@ -293,8 +330,8 @@ def test_node_action_starts_laser_odom_node(launch_api, monkeypatch):
     assert node.output == 'screen' and node.condition is None
     assert isinstance(node.namespace, LaunchConfiguration)
     assert node.namespace.variable_name == 'namespace'
-    assert [(source, target.variable_name) for source, target in node.remappings] == [
-        ('scan', 'scan_topic'), ('odom', 'odom_topic')]
+    assert {source: target.variable_name for source, target in node.remappings} == REMAPPED
+    assert len(node.remappings) == len(REMAPPED)
 
 
 def test_parameters_reach_the_node_with_their_types(launch_api):
@@ -304,8 +341,8 @@ def test_parameters_reach_the_node_with_their_types(launch_api):
     files, inline = node_parameters(node, default)
     assert files == [default['params_file']]
     assert inline == {'use_sim_time': False}
-    files, inline = node_parameters(node, launch_configuration(
-        description, use_sim_time='true', params_file='/tmp/x.yaml'))
+    config = launch_configuration(description, use_sim_time='true', params_file='/tmp/x.yaml')
+    files, inline = node_parameters(odometry_node(description, config), config)
     assert files == ['/tmp/x.yaml'] and inline == {'use_sim_time': True}
     accepted = {spec.name for spec in parameter_specs()} | {USE_SIM_TIME_NAME}
     assert set(inline) <= accepted
@@ -313,7 +350,32 @@ def test_parameters_reach_the_node_with_their_types(launch_api):
         description, scan_topic='/base_scan', namespace='robot1')) == [
         '--ros-args', '-r', '__node:=laser_odom', '-r', '__ns:=/robot1',
         '--params-file', default['params_file'], '-p', 'use_sim_time:=false',
-        '-r', 'scan:=/base_scan', '-r', 'odom:=odom']
+        '-r', 'scan:=/base_scan', '-r', 'odom:=odom', '-r', 'pose:=pose',
+        '-r', 'wheel_odom:=wheel_odom']
+
+
+def test_publish_tf_and_reference_override_the_params_file_only_when_given(launch_api):
+    """Empty (the default), the parameter file decides; given, they win over it."""
+    description = load_launch_description()
+    config = launch_configuration(description, publish_tf='false', reference='local_map',
+                                  publish_debug='true')
+    files, inline = node_parameters(odometry_node(description, config), config)
+    assert inline == {'use_sim_time': False, 'publish_tf': False, 'reference': 'local_map',
+                      'publish_debug': True}
+    assert files == [config['params_file']]  # the overrides come after the file: they win
+    config = launch_configuration(description, publish_tf='true', reference='scan')
+    _, inline = node_parameters(odometry_node(description, config), config)
+    assert inline == {'use_sim_time': False, 'publish_tf': True, 'reference': 'scan'}
+    with pytest.raises(ValueError, match='publish_tf'):
+        launch_configuration(description, publish_tf='maybe')
+    with pytest.raises(ValueError, match='reference'):
+        launch_configuration(description, reference='map')
+    specs = {spec.name: spec for spec in parameter_specs()}
+    declared = arguments_of(description)
+    assert set(declared['reference'].choices) == {'', *specs['reference'].info.choices}
+    for name in ('publish_tf', 'publish_debug'):
+        assert set(declared[name].choices) == {'', 'true', 'false'}
+        assert isinstance(specs[name].default, bool)
 
 
 def test_rviz_is_optional_and_uses_the_shipped_config(launch_api, monkeypatch):
@@ -377,35 +439,66 @@ def start_node(context, args: list[str]) -> LaserOdomNode:
 
 def test_node_runs_with_the_launch_arguments(launch_api, context, tmp_path):
     params = tmp_path / 'plicp.yaml'
-    params.write_text("/**:\n  ros__parameters:\n    matcher: 'plicp'\n")
+    params.write_text("/**:\n  ros__parameters:\n    matcher: 'plicp'\n    prior: 'odom'\n"
+                      "    publish_tf: true\n    reference: 'scan'\n")
     description = load_launch_description()
     config = launch_configuration(
-        description, scan_topic='/base_scan', odom_topic='my_odom', namespace='robot1',
-        use_sim_time='true', params_file=str(params))
-    node = start_node(context, ros_arguments(odometry_node(description), config))
+        description, scan_topic='/base_scan', odom_topic='laser_odom/odom',
+        pose_topic='laser_odom/pose', wheel_odom_topic='/diff_drive/odom',
+        namespace='robot1', use_sim_time='true', params_file=str(params),
+        publish_tf='false', reference='local_map')
+    node = start_node(context, ros_arguments(odometry_node(description, config), config))
     try:
         assert node.get_fully_qualified_name() == '/robot1/laser_odom'
         assert node.get_parameter('use_sim_time').value is True
         assert node.get_parameter('matcher').value == 'plicp'
-        assert wait_for(lambda: '/base_scan' in graph_topics(node, 'subscriber'), 10.0)
-        assert wait_for(lambda: {'/robot1/my_odom', '/robot1/pose'}
+        assert node.get_parameter('prior').value == 'odom'
+        assert node.get_parameter('publish_tf').value is False  # over the file's true
+        assert node.get_parameter('reference').value == 'local_map'  # over 'scan'
+        assert node.pipeline.map_cells() is not None  # the node matches against a map
+        assert wait_for(lambda: {'/base_scan', '/diff_drive/odom'}
+                        <= graph_topics(node, 'subscriber'), 10.0), graph_topics(
+            node, 'subscriber')
+        assert wait_for(lambda: {'/robot1/laser_odom/odom', '/robot1/laser_odom/pose'}
                         <= graph_topics(node, 'publisher'), 10.0), graph_topics(
             node, 'publisher')
+        assert not {'/robot1/odom', '/robot1/pose'} & graph_topics(node, 'publisher')
+    finally:
+        node.destroy_node()
+
+
+def test_empty_overrides_keep_the_params_file(launch_api, context, tmp_path):
+    """publish_tf and reference left empty: the node runs with the file's values."""
+    params = tmp_path / 'map.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    publish_tf: false\n'
+                      '    reference: local_map\n')
+    description = load_launch_description()
+    config = launch_configuration(description, params_file=str(params))
+    node = start_node(context, ros_arguments(odometry_node(description, config), config))
+    try:
+        assert node.get_parameter('publish_tf').value is False
+        assert node.get_parameter('reference').value == 'local_map'
+        assert node.get_parameter('publish_debug').value is False  # the node's default
     finally:
         node.destroy_node()
 
 
 # --- the RViz configuration --------------------------------------------------------------
 
+DISPLAYS = {'Grid': 'Grid', 'TF': 'TF', 'LaserScan': 'LaserScan', 'Odometry': 'Odometry',
+            'Pose': 'Pose', 'MatchedScan': 'PointCloud2', 'LocalMap': 'PointCloud2'}
+"""The displays of the shipped RViz file by name, with their class."""
+
+
 def rviz_displays() -> dict[str, dict]:
+    """Return the displays by name (two PointCloud2 displays: matched scan, local map)."""
     config = yaml.safe_load(RVIZ_FILE.read_text())
     displays = config['Visualization Manager']['Displays']
-    by_class = {}
+    by_name = {}
     for display in displays:
-        name = display['Class'].split('/', 1)[1]
-        assert name not in by_class, f'two {name} displays'
-        by_class[name] = display
-    return by_class
+        assert display['Name'] not in by_name, f'two displays named {display["Name"]}'
+        by_name[display['Name']] = display
+    return by_name
 
 
 def test_rviz_file_is_an_rviz2_config():
@@ -419,8 +512,8 @@ def test_rviz_file_is_an_rviz2_config():
     assert 'rviz_common/Displays' in classes
     assert all(re.fullmatch(r'rviz_(common|default_plugins)/\w[\w ]*', c) for c in classes)
     displays = rviz_displays()
-    assert set(displays) == {'Grid', 'TF', 'LaserScan', 'Odometry', 'Pose', 'PointCloud2'}
-    assert all(d['Enabled'] is True and d['Name'] for d in displays.values())
+    assert {name: d['Class'].split('/', 1)[1] for name, d in displays.items()} == DISPLAYS
+    assert all(d['Enabled'] is True for d in displays.values())
 
 
 def test_rviz_displays_match_the_node(launch_api, context):
@@ -428,23 +521,30 @@ def test_rviz_displays_match_the_node(launch_api, context):
     displays = rviz_displays()
     topic = {name: d['Topic']['Value'] for name, d in displays.items() if 'Topic' in d}
     assert displays['LaserScan']['Topic']['Reliability Policy'] == 'Best Effort'
-    assert displays['PointCloud2']['Topic']['Reliability Policy'] == 'Best Effort'
+    assert displays['MatchedScan']['Topic']['Reliability Policy'] == 'Best Effort'
+    # The map is sent at most once a second and kept for late subscribers: RViz asks for
+    # it as the node offers it (a volatile subscriber would miss the last one).
+    local_map = displays['LocalMap']
+    assert local_map['Topic']['Durability Policy'] == 'Transient Local'
+    assert local_map['Topic']['Reliability Policy'] == 'Reliable'
+    assert local_map['Color Transformer'] == 'Intensity'  # the cells' weights
     covariance = displays['Odometry']['Covariance']
     assert covariance['Value'] is True and covariance['Position']['Value'] is True
 
     description = load_launch_description()
-    args = ros_arguments(odometry_node(description), launch_configuration(description))
-    published = {topic['Odometry'], topic['Pose']}
-    if 'publish_debug' in {spec.name for spec in parameter_specs()}:
-        args += ['-p', 'publish_debug:=true']  # the matched scan, as the README says
-        published.add(topic['PointCloud2'])
+    # The matched scan and the map, as node.md starts RViz.
+    config = launch_configuration(description, reference='local_map', publish_debug='true')
+    args = ros_arguments(odometry_node(description, config), config)
+    published = {topic[name] for name in ('Odometry', 'Pose', 'MatchedScan', 'LocalMap')}
     node = start_node(context, args)
     try:
         assert wait_for(lambda: topic['LaserScan'] in graph_topics(node, 'subscriber'), 10.0)
         assert wait_for(lambda: published <= graph_topics(node, 'publisher'), 10.0), (
             published - graph_topics(node, 'publisher'))
-        assert topic['PointCloud2'] == node.resolve_topic_name('~/matched_scan')
+        assert topic['MatchedScan'] == node.resolve_topic_name('~/matched_scan')
+        assert topic['LocalMap'] == node.resolve_topic_name('~/local_map')
     finally:
         node.destroy_node()
     assert topic == {'LaserScan': '/scan', 'Odometry': '/odom', 'Pose': '/pose',
-                     'PointCloud2': '/laser_odom/matched_scan'}
+                     'MatchedScan': '/laser_odom/matched_scan',
+                     'LocalMap': '/laser_odom/local_map'}

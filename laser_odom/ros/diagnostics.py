@@ -1,8 +1,9 @@
 """Node health on ``/diagnostics``: what came in, what was done with it, and how fast.
 
-Once a second the node publishes one ``diagnostic_msgs/DiagnosticStatus`` with the
-pipeline's counters (scans in and processed, skipped and rejected scans by reason,
-failed and degenerate matches), processing-time statistics and the input rate. The
+Once a second the node publishes one ``diagnostic_msgs/DiagnosticStatus`` with what it
+runs with (matcher, reference, prior), the pipeline's counters (scans in and processed,
+skipped and rejected scans by reason, failed and degenerate matches), processing-time
+statistics and the input rate. The
 level is judged on the last period only (failure rate, backlog, silence) and on the
 recent processing times, so the status recovers as soon as the problem does.
 
@@ -134,6 +135,8 @@ class Snapshot:
     scan_topic: str
     latencies: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """Recent times from a scan's receipt to its odometry being published [s]."""
+    reference: str = ''
+    """What scans are matched against: ``scan`` (the previous one) or ``local_map``."""
 
 
 def skip_reasons(counters: Counter) -> dict[str, int]:
@@ -209,7 +212,7 @@ class DiagnosticsReporter:
         rejected = {k[len(REJECTED_PREFIX):]: v for k, v in sorted(now.counters.items())
                     if k.startswith(REJECTED_PREFIX)}
         pairs = [
-            ('matcher', now.matcher), ('prior', now.prior),
+            ('matcher', now.matcher), ('reference', now.reference), ('prior', now.prior),
             ('scans received', now.received), ('scans in', now.counters['scans_in']),
             ('scans processed', now.counters['processed']),
             (BUSY_KEY, now.counters[BUSY]), (DROPPED_KEY, now.counters[DROPPED]),

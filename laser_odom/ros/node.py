@@ -18,7 +18,8 @@ while their messages keep arriving, so that the prior is interpolated as offline
 ``~/reset`` (``std_srvs/Trigger``) and ``~/set_pose``
 (``geometry_msgs/PoseWithCovarianceStamped``) restart the integration; health goes to
 ``/diagnostics`` once a second; parameters are live (see :mod:`.live`). With
-``publish_debug`` the matched scan goes out on ``~/matched_scan`` in the odom frame.
+``publish_debug`` the matched scan goes out on ``~/matched_scan`` in the odom frame,
+and with ``reference: local_map`` the map too, on ``~/local_map`` (see :mod:`.map_cloud`).
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from laser_odom.ros.diagnostics import (
     BUSY, DiagnosticsReporter, ScanGapCounter, Snapshot)
 from laser_odom.ros.extrinsic import TfInterface
 from laser_odom.ros.live import LiveParameters, StartupError
+from laser_odom.ros.map_cloud import MapCloud
 from laser_odom.ros.priors import PriorInputs
 from laser_odom.ros.usage import params_file_arguments, usage, wants_help
 
@@ -118,6 +120,7 @@ class LaserOdomNode(Node):
         self._odom_pub = self.create_publisher(Odometry, 'odom', 10)
         self._pose_pub = self.create_publisher(PoseStamped, 'pose', 10)
         self._cloud_pub = self.create_publisher(PointCloud2, '~/matched_scan', 10)
+        self._map_cloud = MapCloud(self)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._latencies: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self._gaps = ScanGapCounter()
@@ -173,7 +176,8 @@ class LaserOdomNode(Node):
         prior = s.pipeline.motion.prior
         prior_topic = self._priors.topic_name(prior)
         self.get_logger().info(
-            f'laser odometry: matcher {s.pipeline.matcher}, prior {prior}'
+            f'laser odometry: matcher {s.pipeline.matcher}, reference '
+            f'{s.pipeline.local_map.reference}, prior {prior}'
             + (f' from {prior_topic}' if prior_topic else '')
             + f'; {self._scan_sub.topic_name} -> {self._odom_pub.topic_name}, '
             f'{self._pose_pub.topic_name}; frames {s.node.odom_frame} -> '
@@ -299,6 +303,8 @@ class LaserOdomNode(Node):
             cloud = matched_cloud_msg(estimate, stamp, odom_frame)
             if cloud is not None:
                 self._cloud_pub.publish(cloud)
+            with self._lock:
+                self._map_cloud.publish(self.pipeline, stamp, odom_frame)
         return True
 
     def _on_reset(self, request: Trigger.Request,
@@ -335,7 +341,7 @@ class LaserOdomNode(Node):
                 time.monotonic(), self._received, self.pipeline.counters.copy(),
                 np.array(self.pipeline.processing_times), self.pipeline.matcher.name,
                 self.pipeline.config.motion.prior, self._scan_sub.topic_name,
-                np.array(self._latencies))
+                np.array(self._latencies), self.pipeline.config.local_map.reference)
         status = self._reporter.status(snapshot, self.params.settings.node)
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()

@@ -28,6 +28,8 @@ Publishes:
   /tf                       odom_frame -> base_frame (publish_tf, needs tf2_ros)
   ~/matched_scan            sensor_msgs/PointCloud2, the matched scan in odom_frame
                             (publish_debug)
+  ~/local_map               sensor_msgs/PointCloud2, the local map's cells in odom_frame,
+                            at most 1 Hz (publish_debug, reference: local_map)
   /diagnostics              diagnostic_msgs/DiagnosticArray, once a second
 Services:
   ~/reset                   std_srvs/Trigger: restart at the origin

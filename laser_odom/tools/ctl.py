@@ -92,7 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     reset.add_argument('pose', nargs='*', type=float, metavar='x y yaw',
                        help='metres, metres, radians')
     commands.add_parser('status', help="print the node's diagnostics (once a second on "
-                        '/diagnostics)')
+                        '/diagnostics): matcher, reference (scan or local_map), prior, '
+                        'counters, timing')
     return p
 
 

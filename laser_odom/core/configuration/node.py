@@ -52,7 +52,8 @@ class NodeConfig:
         True, 'Broadcast odom_frame -> base_frame on /tf (needs tf2_ros).')
     publish_debug: bool = param(
         False, 'Publish each matched scan in odom_frame on ~/matched_scan '
-        '(sensor_msgs/PointCloud2), to check matches in RViz.')
+        '(sensor_msgs/PointCloud2), to check matches in RViz; with reference: local_map '
+        'also the local map on ~/local_map, at most once a second.')
     use_tf_extrinsic: bool = param(
         False, 'Take the laser mounting from TF (base_frame <- scan frame_id) instead of '
         'laser_x/laser_y/laser_yaw/laser_upside_down (needs tf2_ros).', read_only=True)

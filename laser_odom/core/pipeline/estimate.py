@@ -28,6 +28,17 @@ jump, an ambiguous match, each reason the global search ran, sweep timing that w
 repaired or ignored, and what the local map did."""
 
 
+UNKNOWN_TWIST_VARIANCE = 1.0e3
+"""Variance [(m/s)^2, (rad/s)^2] of the twist before the first match has measured one.
+
+The first scan after a start or reset has nothing to be matched against, so its
+zero twist is a placeholder, not a measurement: a filter fusing it must not take it
+for "standing still". 1e3 (a standard deviation of 32 m/s) is the order
+robot_localization's migration guide names for a covariance meant to make a filter
+ignore a value, and the largest it takes on a fused variable without a diagnostics
+warning (it warns above 1e3; docs/robot_localization.md)."""
+
+
 @dataclass
 class OdometryEstimate:
     """Odometry after one scan: pose of the base in the odom frame, and its twist.

@@ -21,7 +21,7 @@ from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_class, ScanMatcher
 from laser_odom.core.motion.model import MotionModel
 from laser_odom.core.pipeline.announce import say_why
-from laser_odom.core.pipeline.estimate import OdometryEstimate
+from laser_odom.core.pipeline.estimate import OdometryEstimate, UNKNOWN_TWIST_VARIANCE
 from laser_odom.core.preprocess.deskew import deskew_change, deskewed, twist_of_step
 from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
 from laser_odom.core.registration.acceptance import judge_match
@@ -66,6 +66,15 @@ class OdometryPipeline:
         if config.local_map.reference != 'local_map':
             return None
         return MapRegistrar(config, self.events)
+
+    def map_cells(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Return a copy of the local map's cells: means (N, 2, odom frame), weights.
+
+        For display (the node's ``~/local_map``); None with ``reference: scan``.
+        """
+        if self.map_registrar is None:
+            return None
+        return self.map_registrar.map.map.cell_means()
 
     def reset(self, pose: se2.Pose | None = None,
               covariance: np.ndarray | None = None) -> None:
@@ -234,14 +243,15 @@ class OdometryPipeline:
         """Take the first scan (or the first after a reset) as the reference.
 
         Its sweep motion is not known yet: it is de-skewed once the first match
-        measures the motion (:meth:`_deskew_again`).
+        measures the motion (:meth:`_deskew_again`). Nor is its twist: it is zero with
+        :data:`UNKNOWN_TWIST_VARIANCE`, so that a filter takes it for no measurement.
         """
         self._set_keyframe(current, motion_known=False)
         if self.map_registrar is not None:
             self.map_registrar.restart(current, self.pose)
         return OdometryEstimate(stamp_ns, self.pose.copy(), self.pose_covariance.copy(),
-                                np.zeros(3), np.eye(3) * 1e-6, 'initialized',
-                                scan_points=current.points)
+                                np.zeros(3), np.eye(3) * UNKNOWN_TWIST_VARIANCE,
+                                'initialized', scan_points=current.points)
 
     def _register(self, current: ScanPoints, guess_step: se2.Pose, dt: float,
                   stamp_ns: int, untrusted: str) -> OdometryEstimate:
