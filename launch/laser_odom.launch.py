@@ -6,9 +6,7 @@ Arguments: ``scan_topic``, ``odom_topic``, ``params_file``, ``namespace``,
 ``use_sim_time`` and ``rviz`` (``ros2 launch laser_odom laser_odom.launch.py -s``
 lists them with their defaults). The node's other names (``pose``, ``~/reset``,
 ``~/set_pose``, ``~/matched_scan``) resolve under ``namespace`` and the node name
-``laser_odom``; the shipped RViz file assumes the defaults (no namespace). rviz2 is
-not a dependency of the package (a robot has no display): ``rviz:=true`` needs it
-installed, and with ``rviz:=false`` it is never looked up.
+``laser_odom``; the shipped RViz file assumes the defaults (no namespace).
 """
 
 import os
@@ -49,9 +47,8 @@ def generate_launch_description():
                         'and RViz.'),
         DeclareLaunchArgument(
             'rviz', default_value='false',
-            description='Also start rviz2 (install it: ros-jazzy-rviz2) with the shipped '
-                        'rviz/laser_odom.rviz (its topics are /scan, /odom, /pose: '
-                        'without namespace or remaps).'),
+            description='Also start rviz2 with the shipped rviz/laser_odom.rviz (its '
+                        'topics are /scan, /odom, /pose: without namespace or remaps).'),
     ]
     odometry = Node(
         package=PACKAGE,
