@@ -400,8 +400,11 @@ def test_setup_installs_the_launch_and_rviz_files(monkeypatch):
         'launch/laser_odom.launch.py')
     assert installed[f'share/{PACKAGE}/rviz/laser_odom.rviz'] == 'rviz/laser_odom.rviz'
     package_xml = (ROOT / 'package.xml').read_text()
-    for dependency in ('launch', 'launch_ros', 'ament_index_python', 'rviz2'):
+    for dependency in ('launch', 'launch_ros', 'ament_index_python'):
         assert f'<exec_depend>{dependency}</exec_depend>' in package_xml, dependency
+    # rviz2 is the rviz:=true option's, not a dependency (test_package_xml): launch_ros
+    # looks a node's package up only when the node starts, and the condition keeps it off
+    assert '<exec_depend>rviz2</exec_depend>' not in package_xml
 
 
 def test_the_package_imports_without_launch():

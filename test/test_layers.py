@@ -5,7 +5,7 @@ a module imports from its own package (a direct child of ``laser_odom.core``, or
 ``io``, ``ros``, ``tools``) and from lower layers only - never from a package beside it
 in its layer, nor from above - and no module reaches itself again through its imports
 (a cycle). Read from the source (deferred imports inside functions and imports under
-``TYPE_CHECKING`` count too). The README's architecture section shows the same layers.
+``TYPE_CHECKING`` count too). docs/development.md shows the same layers (*Layers*).
 
 The core is ROS-free (numpy/scipy: importable and testable without rclpy), and the
 matchers and the search sit below the configuration and the pipeline: a matcher that
@@ -226,10 +226,10 @@ def test_every_package_says_what_it_holds_and_what_it_may_import():
         assert doc and 'May import' in doc, path.relative_to(ROOT)
 
 
-def test_the_readme_shows_the_layers():
-    """The README's diagram of ``core/``: one row per layer, top down, as in :data:`LAYERS`."""
-    section = (ROOT / 'README.md').read_text().split('\n## Architecture\n', 1)[1]
-    section = section.split('\n## ', 1)[0]
+def test_the_development_page_shows_the_layers():
+    """docs/development.md's diagram of ``core/``: a row per layer, top down, as in LAYERS."""
+    page = (ROOT / 'docs' / 'development.md').read_text()
+    section = page.split('\n### Layers\n', 1)[1].split('\n## ', 1)[0]
     block = next(b for b in re.findall(r'```\n(.*?)```', section, re.S) if 'se2.py' in b)
     rows = [sorted('core.' + re.sub(r'(/|\.py)$', '', word) for word in line.split()
                    if re.fullmatch(r'\w+(/|\.py)', word)) for line in block.splitlines()]

@@ -11,7 +11,7 @@ guess, scored by the benchmark's code; how to build and run it, and the figures 
 other settings: ``.ci/peers/README.md``).
 
 Every matcher is also held to its own documented figures (the committed benchmark
-result, test/figures/benchmark.json, from which README and configs are rendered): no
+result, test/figures/benchmark.json, from which docs and configs are rendered): no
 figure may be more than 5 % worse. Those that meet CSM's figures also publish an
 honest pose covariance over the whole log: its mean NEES (the reference's noise
 accounted) is at most ``MAX_WHOLE_LOG_NEES``.

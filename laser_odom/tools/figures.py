@@ -1,15 +1,15 @@
 """Documented figures, rendered from the committed benchmark result (``make docs``).
 
 Every block between ``<!-- figures:NAME:begin -->`` and ``<!-- figures:NAME:end -->``
-in the README and the pages of ``docs/`` (the real-log table in the README, the
-per-scan times in ``docs/benchmark.md``, the NEES in ``docs/node.md``), and the block
-"Measured with these values" in each ``config/<matcher>.yaml``, are written from
-``test/figures/benchmark.json`` - the ``--json`` of one ``laser_odom_bench`` run
-(``make figures``), which records its date, machine and library versions. A block may
-sit in any of those documents (:data:`BLOCKS` renders it wherever its markers are), but
-in exactly one. Nothing is typed by hand: ``test_docs`` fails when the files and the
-JSON disagree, and ``test_real_data`` fails when the code falls more than 5 % behind a
-committed figure.
+in the pages of ``docs/`` (the real-log and local-map tables and the per-scan times in
+``docs/benchmark.md``, the NEES in ``docs/node.md``), and the block "Measured with these
+values" in each ``config/<matcher>.yaml``, are written from ``test/figures/benchmark.json``
+- the ``--json`` of one ``laser_odom_bench`` run (``make figures``), which records its
+date, machine and library versions. A block may sit in any of those pages
+(:data:`BLOCKS` renders it wherever its markers are), but in exactly one. The README
+holds no figures: it is a guide, and says which option when in words. Nothing is typed
+by hand: ``test_docs`` fails when the files and the JSON disagree, and
+``test_real_data`` fails when the code falls more than 5 % behind a committed figure.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ REAL_LOGS = (('fr079', 'fr079'), ('mit-csail', 'MIT-CSAIL'), ('intel', 'Intel'))
 
 PRIOR = 'constant_velocity'
 TIMING_DATASETS = ('fr079', 'sim-office-1081')
-"""Datasets whose median time per scan the README quotes (360 and 1081 beams)."""
+"""Datasets whose median time per scan docs/benchmark.md quotes (360 and 1081 beams)."""
 
-DOCUMENTS = ('README.md', 'docs/benchmark.md', 'docs/node.md')
+DOCUMENTS = ('docs/benchmark.md', 'docs/node.md')
 """Documents (relative to the source tree) whose figure blocks ``make docs`` renders."""
 
 CONFIG_MARKERS = ('# figures:begin', '# figures:end')
@@ -81,7 +81,7 @@ def figure(payload: Mapping[str, Any], dataset: str, matcher: str,
     return row
 
 
-def readme_table(payload: Mapping[str, Any]) -> str:
+def real_log_table(payload: Mapping[str, Any]) -> str:
     """Markdown table: mean RPE (m / deg), ATE (m) and failed steps per matcher and log."""
     beams = {name: figure(payload, name, MATCHERS[0])['beams'] for name, _ in REAL_LOGS}
     heading = ' | '.join(f'{name} ({beams[name]} beams)' for name, _ in REAL_LOGS)
@@ -98,7 +98,7 @@ def readme_table(payload: Mapping[str, Any]) -> str:
 
 
 def speed_sentence(payload: Mapping[str, Any]) -> str:
-    """Return the README's per-scan times: fr079 (360 beams), 1081-beam simulated office."""
+    """Return the per-scan times: fr079 (360 beams) and the 1081-beam simulated office."""
     def times(dataset: str) -> list[str]:
         return [f'{figure(payload, dataset, m)["median_ms"]:.1f}' for m in MATCHERS]
 
@@ -111,7 +111,7 @@ def speed_sentence(payload: Mapping[str, Any]) -> str:
 
 
 def nees_sentence(payload: Mapping[str, Any]) -> str:
-    """Return the README's real-log NEES over 100 steps and whole logs, every matcher."""
+    """Return the real-log NEES over 100 steps and whole logs, every matcher."""
     rows = [figure(payload, name, m) for name, _ in REAL_LOGS for m in MATCHERS]
 
     def spread(key: str) -> str:
@@ -173,7 +173,7 @@ def map_table(payload: Mapping[str, Any]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-BLOCKS = {'table': readme_table, 'speed': speed_sentence, 'nees': nees_sentence,
+BLOCKS = {'table': real_log_table, 'speed': speed_sentence, 'nees': nees_sentence,
           'map': map_table}
 """Every figure block, by name: its renderer from the benchmark result."""
 
@@ -183,7 +183,7 @@ def blocks_in(text: str) -> list[str]:
     return [name for name in BLOCKS if markers(name)[0] in text]
 
 
-def rendered_text(text: str, payload: Mapping[str, Any], where: str = 'README') -> str:
+def rendered_text(text: str, payload: Mapping[str, Any], where: str = 'docs') -> str:
     """Return a document with every figure block it holds rendered from ``payload``."""
     for name in blocks_in(text):
         text = replace_between(text, markers(name), BLOCKS[name](payload), where)
@@ -220,7 +220,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--json', type=Path, default=FIGURES_JSON,
                         help='benchmark result (default: test/figures/benchmark.json)')
     parser.add_argument('--root', type=Path, default=ROOT,
-                        help='source tree whose README.md, docs/ and config/ to update '
+                        help='source tree whose docs/ and config/ to update '
                         "(default: this package's)")
     args = parser.parse_args(argv)
     try:
