@@ -80,14 +80,16 @@ def test_space_narrows_the_declared_ranges_around_the_start():
 
 
 def test_no_trial_crosses_an_ordered_pair():
-    """A minimum is never proposed above its maximum (nicp.normal_min_neighbours 7 above
-    nicp.normal_neighbours 6 was recommended, and the node accepted it)."""
+    """A minimum is never proposed above its maximum.
+
+    Issue 39: nicp.normal_min_neighbours 7 above nicp.normal_neighbours 6 was recommended.
+    """
     space = matcher_space('nicp', {}, ('none', 'constant_velocity'))
     dims = {d.name: d for d in space}
     # A fixed maximum cuts the range; of two searched ones the lower follows the higher.
     assert dims['global_search_linear'].high == SPECS['global_search_max_linear'].default
-    assert dims['nicp.normal_min_neighbours'].at_most == ('nicp.normal_neighbours',
-                                                         'nicp.information_neighbours')
+    assert dims['nicp.normal_min_neighbours'].at_most == (
+        'nicp.normal_neighbours', 'nicp.information_neighbours')
     assert dims['nicp.flat_curvature'].at_most == ('nicp.max_curvature',)
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=5))
     crossed = 0
@@ -302,7 +304,8 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
     crossed.write_text('/**:\n  ros__parameters:\n    nicp:\n      normal_neighbours: 6\n'
                        '      normal_min_neighbours: 7\n')
     unreachable = tmp_path / 'unreachable.yaml'
-    unreachable.write_text('nicp.normal_min_neighbours: [10, 20]\nnicp.normal_neighbours: [3, 8]\n')
+    unreachable.write_text('nicp.normal_min_neighbours: [10, 20]\n'
+                           'nicp.normal_neighbours: [3, 8]\n')
     bag = str(sim / 'bag')
     return {
         'no scans': ([str(no_scans)], 'no LaserScan topic'),
