@@ -42,6 +42,7 @@ from laser_odom.io.bag_reader import (
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import reader_may_leave
+from laser_odom.ros.graph import DISCOVERY_TIMEOUT, STARTUP_TIMEOUT
 from laser_odom.tools.arguments import number_in
 from laser_odom.tools.plots import (
     check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
@@ -49,7 +50,7 @@ from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import (
     DEFAULT_MIN_COVERAGE, print_summary, read_reference, ReplayError, ReplayRecord,
     write_outputs)
-from laser_odom.tools.replay_target import params_node_name
+from laser_odom.tools.replay_target import ANSWER_TIMEOUT, params_node_name
 from laser_odom.tools.stopping import stop_between_scans
 
 PROG = 'laser_odom_replay'
@@ -107,9 +108,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help='node name (with namespace, if any) the params file is read for, '
                    'as the node reads it; --live: also the node whose ~/reset and '
                    'diagnostics are used (default: laser_odom, or with --live the one found)')
-    p.add_argument('--timeout', type=float, default=2.0,
+    p.add_argument('--timeout', type=number_in(float, 0.0, 1e6, low_open=True, what='number'),
+                   default=None, metavar='S',
                    help='--live: seconds to wait for the odometry of one scan (with '
-                   '--rate: of the last one)')
+                   f'--rate: of the last one; default {ANSWER_TIMEOUT:g}), and at most '
+                   'for the node to appear, start and subscribe (default: '
+                   f'{DISCOVERY_TIMEOUT:g} s to appear, up to {STARTUP_TIMEOUT:g} s while '
+                   'it compiles its kernels)')
     p.add_argument('--rate', type=number_in(float, 0.0, 1e6, low_open=True, what='number'),
                    metavar='R',
                    help='--live: play the scans (and prior messages) at R times their '
