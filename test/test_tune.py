@@ -303,6 +303,8 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
     crossed = tmp_path / 'crossed.yaml'
     crossed.write_text('/**:\n  ros__parameters:\n    nicp:\n      normal_neighbours: 6\n'
                        '      normal_min_neighbours: 7\n')
+    other = tmp_path / 'other.yaml'
+    other.write_text('front_odom:\n  ros__parameters:\n    matcher: icp\n')
     unreachable = tmp_path / 'unreachable.yaml'
     unreachable.write_text('nicp.normal_min_neighbours: [10, 20]\n'
                            'nicp.normal_neighbours: [3, 8]\n')
@@ -321,6 +323,9 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
         'matcher': ([bag, '--matchers', 'nicp,sift'], "unknown matcher 'sift'"),
         'crossed pair': ([bag, '--params-file', str(crossed)],
                          'nicp.normal_min_neighbours=7 must not exceed nicp.normal_neighbours=6'),
+        'no section': ([bag, '--params-file', str(other)],
+                       f'params file {other} has no section for /laser_odom (it has front_odom):'
+                       ' none of its parameters apply, so nothing would be run with it'),
         'no ordered value': ([bag, '--matchers', 'nicp', '--space', str(unreachable)],
                              'nicp.normal_min_neighbours <= nicp.normal_neighbours'),
     }

@@ -134,7 +134,8 @@ def load_settings(args: argparse.Namespace) -> NodeSettings:
     """
     values: dict[str, Any] = {}
     if args.params_file is not None:
-        checked = read_params_files([args.params_file], params_node_name(args))
+        checked = read_params_files([args.params_file], params_node_name(args),
+                                    require_section=True)
         for warning in checked.warnings:
             warner(args.quiet)(warning)
         values = checked.values

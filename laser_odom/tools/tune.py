@@ -240,7 +240,7 @@ def tune(args: argparse.Namespace) -> int:
     overrides = read_space_file(args.space, matchers) if args.space is not None else {}
     base: dict[str, Any] = {}
     if args.params_file is not None:
-        checked = read_params_files([args.params_file])
+        checked = read_params_files([args.params_file], require_section=True)
         for message in checked.warnings:
             warn(message)
         base = {k: v for k, v in checked.values.items() if k != 'matcher'}
