@@ -318,3 +318,20 @@ def test_make_test_says_why_each_test_was_skipped(tmp_path):
     assert result.returncode == 0, result.stdout
     assert ('SKIPPED [1] test_skipping.py:5: real robot logs not available '
             '(../shared/data does not exist)') in result.stdout
+
+
+def test_the_help_texts_and_the_package_mention_the_local_map():
+    """Issue 39: they described the package as scan-to-scan only."""
+    from laser_odom.ros.usage import usage
+    from laser_odom.tools import bench, replay, tune
+    texts = {'laser_odom_node': usage(),
+             'laser_odom_replay': replay.build_parser().format_help(),
+             'laser_odom_tune': tune.build_parser().format_help(),
+             'package.xml': (ROOT / 'package.xml').read_text()}
+    with contextlib.redirect_stdout(io.StringIO()) as bench_help, pytest.raises(SystemExit):
+        bench.parse_args(['--help'])
+    texts['laser_odom_bench'] = bench_help.getvalue()
+    for name, text in texts.items():
+        flat = ' '.join(text.split())
+        assert 'local map of the recent scans' in flat, name
+        assert 'local_map' in flat, name

@@ -97,7 +97,9 @@ def progress_wanted(args: argparse.Namespace) -> bool:
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Parse the command line."""
     parser = argparse.ArgumentParser(
-        prog='laser_odom_bench', description='Score matchers on simulated and real datasets.')
+        prog='laser_odom_bench', description='Score matchers on simulated and real datasets, '
+        'matching each scan against the previous scan and/or a local map of the recent '
+        'scans (--reference-modes scan,local_map).')
     parser.add_argument('--matchers', default=','.join(matcher_names()),
                         help='comma-separated matcher names (default: all)')
     parser.add_argument('--datasets', default=None,

@@ -62,8 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     p = argparse.ArgumentParser(
         prog=PROG, description='Run the laser odometry over the scans of a recorded bag, '
-        'in-process or (--live) through a running laser_odom_node; write the trajectory '
-        'as TUM and/or a bag, and score it against a reference.')
+        'in-process or (--live) through a running laser_odom_node - each scan matched '
+        'against the previous scan or, with reference: local_map in the params file, a '
+        'local map of the recent scans; write the trajectory as TUM and/or a bag, and '
+        'score it against a reference.')
     p.add_argument('bag', help='ROS 2 bag directory, .db3/.mcap file, or ROS 1 .bag file')
     p.add_argument('--scan-topic', help='LaserScan topic (default: the only one in the bag)')
     p.add_argument('--matcher', choices=matcher_names(),

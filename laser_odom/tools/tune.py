@@ -68,9 +68,10 @@ def failure_lines(summaries: Sequence[StudySummary]) -> list[str]:
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     p = argparse.ArgumentParser(
-        prog=PROG, description='Tune the matchers and pipeline settings on your own bags '
-        'with Optuna, against a reference or reference-free; write the best as a params '
-        'file for laser_odom_node.')
+        prog=PROG, description='Tune the matchers and pipeline settings - among them what '
+        'each scan is matched against, the previous scan or a local map of the recent scans '
+        '(reference: scan, local_map) - on your own bags with Optuna, against a reference or '
+        'reference-free; write the best as a params file for laser_odom_node.')
     p.add_argument('bags', nargs='+', metavar='BAG', help='ROS 2 or ROS 1 bag')
     p.add_argument('--matchers', help='comma-separated matchers (default: all: '
                    f'{",".join(matcher_names())})')
