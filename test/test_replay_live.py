@@ -156,7 +156,7 @@ def test_live_replay_waits_for_a_node_that_is_still_starting(sim_bag, peer):
     namespace = f'/starting_{os.getpid()}'
     stub = StubNode(peer, namespace)
     try:
-        run = Replay(DOMAIN, str(sim_bag), '--live', '--timeout', '5')
+        run = Replay(DOMAIN, str(sim_bag), '--live')  # --timeout would bound the wait
         assert peer.spin_until(lambda: run.said('to finish starting'), 60.0), run.err
         peer.spin_until(lambda: run.process.poll() is not None,
                         OLD_DISCOVERY_LIMIT + 2.0 - (time.monotonic() - run.started))
