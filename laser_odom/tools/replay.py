@@ -131,8 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
 def load_settings(args: argparse.Namespace) -> NodeSettings:
     """Return what the node would run with: the params file read as the node reads it.
 
-    The file's warnings (unknown names, no section for the node) go to stderr, as the
-    node logs them; ``--matcher`` and ``--prior`` override the file.
+    The file's warnings (unknown names) go to stderr, as the node logs them; a file
+    with no section for the node is an error (the node would run on its defaults);
+    ``--matcher`` and ``--prior`` override the file.
     """
     values: dict[str, Any] = {}
     if args.params_file is not None:
