@@ -31,8 +31,10 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py package.xml
 
 venv: $(STAMP)
 
+# -rs: every skipped test with its reason (the real logs of ../shared/data, a missing
+# optional package), so that a skip is never silent.
 test: $(STAMP)
-	$(Q)$(BIN)/python -m pytest -q -n 2 --dist worksteal test
+	$(Q)$(BIN)/python -m pytest -q -rs -n 2 --dist worksteal test
 
 lint: $(STAMP)
 	$(Q)$(BIN)/python -m flake8 laser_odom test setup.py

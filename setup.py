@@ -25,7 +25,8 @@ setup(
     zip_safe=True,
     maintainer='laser_odom maintainers',
     maintainer_email='maintainers@laser-odom.dev',
-    description='2D laser odometry (ICP, PL-ICP, NICP, IMLS-ICP) for ROS 2',
+    description='2D laser odometry (ICP, PL-ICP, NICP, IMLS-ICP) for ROS 2, scan to scan '
+                'or against a local map',
     license='Apache-2.0',
     tests_require=['pytest'],
     extras_require={'tools': ['optuna', 'matplotlib']},

@@ -366,3 +366,50 @@ def test_a_reader_that_leaves_early_loses_no_json(tmp_path):
     assert 'Traceback' not in stderr and 'BrokenPipeError' not in stderr, stderr
     rows = json.loads(result.read_text())['rows']
     assert [row['matcher'] for row in rows] == ['plicp'] and rows[0]['steps'] == 599
+
+
+def test_live_bench_runs_the_nodes_with_the_params_file_and_its_reference(
+        tmp_path, capsys, monkeypatch):
+    """Issue 39: ``--live --params-file F`` with ``reference: local_map`` ran scan mode."""
+    pytest.importorskip('rclpy')
+    from laser_odom.tools import bench_live
+    params = tmp_path / 'map.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    reference: local_map\n')
+    runs = []
+
+    def run_matcher(matcher, messages, rate, reference='scan', params_file=None):
+        runs.append((matcher, reference, params_file))
+        return bench_live.LiveRow(matcher, len(messages), len(messages), 0, 1.0, 2.0, 1.0,
+                                  2.0, 0, 0, 10.0, 1.0, 1.0, 5.0, reference)
+    monkeypatch.setattr(bench_live, 'run_matcher', run_matcher)
+    assert main(['--live', '--matchers', 'nicp', '--duration', '0.5', '--beams', '90',
+                 '--params-file', str(params)]) == 0
+    assert runs == [('nicp', 'local_map', params)]
+    assert capsys.readouterr().out.splitlines()[3].split()[:2] == ['nicp', 'local_map']
+
+    class Started(Exception):
+        pass
+
+    def popen(command, **kwargs):
+        raise Started(command)
+    monkeypatch.setattr(bench_live.subprocess, 'Popen', popen)
+    with pytest.raises(Started) as started:
+        bench_live.LiveSession('nicp', 7, 'local_map', params)
+    command = started.value.args[0]
+    assert command[command.index('--params-file') + 1] == str(params)
+    assert command.index('--params-file') < command.index('reference:=local_map') - 1
+
+
+@pytest.mark.parametrize('live', [False, True], ids=['offline', 'live'])
+def test_a_params_file_with_no_section_for_the_node_is_an_error(live, tmp_path, capsys):
+    """Issue 39: it warned, then ran on the defaults with exit 0."""
+    other = tmp_path / 'other.yaml'
+    other.write_text('front_odom:\n  ros__parameters:\n    matcher: icp\n')
+    argv = ['--params-file', str(other)] + (
+        ['--live', '--matchers', 'nicp'] if live else ['--datasets', 'sim-office-360'])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == (f'laser_odom_bench: error: params file {other} has no section for '
+                   '/laser_odom (it has front_odom): none of its parameters apply, so '
+                   'nothing would be run with it - use "/**:" to address the node under any '
+                   'name and namespace\n')

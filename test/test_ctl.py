@@ -66,10 +66,17 @@ def test_a_refused_value_or_an_unknown_name_is_one_line_and_exit_2(node, ctl):
     assert (code, out) == (2, '')
     assert err == (f'laser_odom_ctl: error: {NODE} refused min_inlier_ratio = 7: '
                    'min_inlier_ratio=7.0 is above the maximum 1.0\n')
-    code, out, err = ctl('get', 'max_scan_gapp')
-    assert (code, out) == (2, '') and err == (
-        f"laser_odom_ctl: error: {NODE} has no parameter 'max_scan_gapp'; laser_odom_ctl "
-        'params lists them\n')
+    # A crossed pair (issue 39): refused with both names; the node runs on, unchanged.
+    assert ctl('set', 'nicp.normal_min_neighbours', '13') == (2, '', (
+        f'laser_odom_ctl: error: {NODE} refused nicp.normal_min_neighbours = 13: '
+        'nicp.normal_min_neighbours=13 must not exceed nicp.normal_neighbours=12\n'))
+    assert ctl('get', 'nicp.normal_min_neighbours') == (0, '3\n', '')
+    for command in (('get', 'max_scan_gapp'), ('set', 'max_scan_gapp', '2')):
+        code, out, err = ctl(*command)
+        assert (code, out) == (2, '') and err == (
+            f"laser_odom_ctl: error: {NODE} has no parameter 'max_scan_gapp' (did you mean "
+            "'max_scan_gap'?); laser_odom_ctl params lists them\n"), command
+    assert "(did you mean 'icp.max_iterations'?)" in ctl('get', 'max_iterations')[2]
     assert ctl('reset', '1', '2')[0] == 2  # a pose needs x, y and yaw
 
 

@@ -16,6 +16,8 @@ import io
 from pathlib import Path
 import re
 import shlex
+import subprocess
+import sys
 
 import pytest
 
@@ -353,3 +355,37 @@ def test_the_examples_make_the_folder_they_write_into():
                       if any(w.startswith('out/') for w in words)), None)
         if first is not None:
             assert ['mkdir', '-p', 'out'] in commands[:first], page.name
+
+
+def test_make_test_says_why_each_test_was_skipped(tmp_path):
+    """Issue 39: ``make test`` skipped 57 tests without a word on why."""
+    makefile = (ROOT / 'Makefile').read_text()
+    recipe = makefile.split('\ntest: $(STAMP)\n', 1)[1].splitlines()[0]
+    flags = recipe.split('-m pytest', 1)[1].split()[:-1]  # without the test folder
+    flags = [f for i, f in enumerate(flags) if f not in ('-n', '--dist') and (
+        i == 0 or flags[i - 1] not in ('-n', '--dist'))]  # one process is enough here
+    (tmp_path / 'test_skipping.py').write_text(
+        'import pytest\n\n\ndef test_real_logs():\n'
+        "    pytest.skip('real robot logs not available (../shared/data does not exist)')\n")
+    result = subprocess.run([sys.executable, '-m', 'pytest', '-p', 'no:cacheprovider', *flags,
+                             'test_skipping.py'], cwd=tmp_path, capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout
+    assert ('SKIPPED [1] test_skipping.py:5: real robot logs not available '
+            '(../shared/data does not exist)') in result.stdout
+
+
+def test_the_help_texts_and_the_package_mention_the_local_map():
+    """Issue 39: they described the package as scan-to-scan only."""
+    from laser_odom.ros.usage import usage
+    from laser_odom.tools import bench, replay, tune
+    texts = {'laser_odom_node': usage(),
+             'laser_odom_replay': replay.build_parser().format_help(),
+             'laser_odom_tune': tune.build_parser().format_help(),
+             'package.xml': (ROOT / 'package.xml').read_text()}
+    with contextlib.redirect_stdout(io.StringIO()) as bench_help, pytest.raises(SystemExit):
+        bench.parse_args(['--help'])
+    texts['laser_odom_bench'] = bench_help.getvalue()
+    for name, text in texts.items():
+        flat = ' '.join(text.split())
+        assert 'local map of the recent scans' in flat, name
+        assert 'local_map' in flat, name

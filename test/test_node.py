@@ -184,7 +184,9 @@ def test_live_parameters_are_validated_and_applied(peer, main_node, main_run, da
             ('prior', 'gps', ['not one of', 'constant_velocity']),
             ('matcher', 'nope', matcher_names()),
             ('odom_frame', 'map', ['read-only']),
-            ('diagnostics_warn_failure_rate', 0.9, ['must not exceed'])]:
+            ('diagnostics_warn_failure_rate', 0.9, ['must not exceed']),
+            ('nicp.normal_min_neighbours', 13,
+             ['nicp.normal_min_neighbours=13 must not exceed nicp.normal_neighbours=12'])]:
         result = set_value(name, value)
         assert not result.successful and all(w in result.reason for w in words), result.reason
 

@@ -103,9 +103,16 @@ def test_files_that_address_no_node_or_nothing_are_warned(tmp_path):
     assert checked.values == {}
     warning, = checked.warnings
     assert 'no section for /laser_odom' in warning and 'front_odom' in warning
+    assert 'none of its parameters apply, the node runs on its defaults for them' in warning
     empty = tmp_path / 'empty.yaml'
     empty.write_text('')
     assert 'empty' in read_params_files([empty]).warnings[0]
+    # The replay, the benchmark and the tuner: an error, not a run on the defaults.
+    for unaddressed in (path, empty):
+        with pytest.raises(ParamsFileError) as error:
+            read_params_files([unaddressed], '/laser_odom', require_section=True)
+        assert str(error.value).startswith(f'params file {unaddressed} ')
+        assert 'so nothing would be run with it' in str(error.value)
 
 
 @pytest.mark.parametrize('values, words', [

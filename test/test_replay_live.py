@@ -156,7 +156,7 @@ def test_live_replay_waits_for_a_node_that_is_still_starting(sim_bag, peer):
     namespace = f'/starting_{os.getpid()}'
     stub = StubNode(peer, namespace)
     try:
-        run = Replay(DOMAIN, str(sim_bag), '--live', '--timeout', '5')
+        run = Replay(DOMAIN, str(sim_bag), '--live')  # --timeout would bound the wait
         assert peer.spin_until(lambda: run.said('to finish starting'), 60.0), run.err
         peer.spin_until(lambda: run.process.poll() is not None,
                         OLD_DISCOVERY_LIMIT + 2.0 - (time.monotonic() - run.started))
@@ -207,3 +207,13 @@ def setup_module(module) -> None:
     """Give the stub tests a domain of their own."""
     from node_harness import unique_domain_id
     module.DOMAIN = unique_domain_id()
+
+
+def test_timeout_bounds_the_wait_for_the_node(sim_bag, capsys, monkeypatch):
+    """Issue 39: ``--live --timeout 5`` still waited 30 s for a node that was not there."""
+    from node_harness import unique_domain_id
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(unique_domain_id()))  # no node on it
+    assert replay.main([str(sim_bag), '--live', '--timeout', '2', '--quiet']) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('laser_odom_replay: error: --live: no laser_odom node found ')
+    assert ' within 2 s; ' in err and err.count('\n') == 1  # was: within 30 s

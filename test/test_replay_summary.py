@@ -12,6 +12,7 @@ import signal
 
 import pytest
 
+from laser_odom.core.evaluation.metrics import distance_travelled
 from laser_odom.io.bag_writer import write_bag
 from laser_odom.io.tum import read_tum
 from laser_odom.tools import replay, simulate
@@ -76,12 +77,20 @@ def test_ctrl_c_says_the_run_was_interrupted_and_keeps_what_was_done(bag, tmp_pa
 
     monkeypatch.setattr(replay.BagReader, 'scans', scans)
     tum = tmp_path / 'part.tum'
-    assert replay.main([str(bag), '--matcher', 'imls', '--tum', str(tum)]) == 130
+    reference = read_tum(str(bag) + '.tum')
+    assert replay.main([str(bag), '--matcher', 'imls', '--tum', str(tum),
+                        '--reference', str(bag) + '.tum']) == 130
     out = capsys.readouterr().out.splitlines()
     assert out[0] == ('INTERRUPTED (Ctrl-C) after 31 scans of the 100 in the bag: the figures '
                       'and outputs cover only the scans before it')
     assert out[1].startswith('scans 31 from /scan (imls): processed 31, matched 30')
     assert len(read_tum(tum)) == 31 and out[-1] == f'wrote {tum} (31 poses, TUM)'
+    # Issue 39: the ATE's distance is the reference's over the 31 scans, not the bag's.
+    ate = next(line for line in out if ' ATE ' in line)
+    travelled = float(re.search(r'of (\S+) m travelled', ate).group(1))
+    assert travelled == round(distance_travelled(type(reference)(
+        reference.stamps_ns[:31], reference.poses[:31])), 2)
+    assert travelled < 0.5 * distance_travelled(reference)
 
 
 def test_every_file_written_is_named(bag, tmp_path, capsys):

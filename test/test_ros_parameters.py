@@ -88,6 +88,14 @@ def test_check_change_gives_reasons():
     assert 'must not exceed' in check_change(
         values, {'diagnostics_warn_processing_time': 1.0}, specs)
     assert check_change(values, {'use_sim_time': True}, specs) is None
+    # A crossed pair, one side changed or both at once (issue 39).
+    assert check_change(values, {'nicp.normal_min_neighbours': 13}, specs) == (
+        'nicp.normal_min_neighbours=13 must not exceed nicp.normal_neighbours=12')
+    assert check_change(values, {'nicp.normal_neighbours': 6, 'nicp.normal_min_neighbours': 7},
+                        specs) == ('nicp.normal_min_neighbours=7 must not exceed '
+                                   'nicp.normal_neighbours=6')
+    assert check_change(values, {'nicp.normal_neighbours': 6, 'nicp.normal_min_neighbours': 6},
+                        specs) is None
 
 
 def test_scan_round_trip_keeps_stamp_and_readings():

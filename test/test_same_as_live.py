@@ -76,8 +76,13 @@ PARAMS_FILES = {
     'not YAML': '/**:\n  ros__parameters:\n    matcher: [icp\n',
     'beside ros__parameters': '/**:\n  ros__parameters:\n    matcher: icp\n  extra: 1\n',
     'empty': '',
+    'crossed pair': '/**:\n  ros__parameters:\n    nicp:\n      normal_neighbours: 6\n'
+                    '      normal_min_neighbours: 7\n',
 }
 """Each row: a params file the issue found read differently by the node and the replay."""
+
+UNADDRESSED = ('another node', 'namespaced elsewhere', 'empty')
+"""Rows none of whose sections addresses /laser_odom."""
 
 
 def _node_outcome(process: NodeProcess) -> tuple:
@@ -125,18 +130,27 @@ def test_node_and_replay_judge_every_params_file_alike(bag, tmp_path, capsys):
         for process in nodes.values():
             process.interrupt()
     offline = {label: _replay_outcome(bag, path, capsys) for label, path in paths.items()}
-    for label in PARAMS_FILES:
+    # A file that addresses another node: the node starts on its defaults and says so
+    # (as ROS does); the replay refuses to run settings the user did not ask for.
+    for label in UNADDRESSED:
+        _, (warning,), matcher = live[label]
+        assert matcher == 'nicp' and ', the node runs on its defaults for them' in warning
+        assert offline[label] == (warning.replace(
+            'the node runs on its defaults for them', 'so nothing would be run with it'),
+            [], None), (label, offline[label])
+    for label in set(PARAMS_FILES) - set(UNADDRESSED):
         assert live[label] == offline[label], (label, live[label], offline[label])
     # What each row means, so that "alike" cannot be "alike and wrong".
     expected_errors = {'no ros__parameters': 'ros__parameters', 'wrong type': 'max_scan_gap',
                        'out of range': 'min_inlier_ratio', 'not YAML': 'not valid YAML',
-                       'beside ros__parameters': 'extra'}
+                       'beside ros__parameters': 'extra', 'crossed pair':
+                       'nicp.normal_min_neighbours=7 must not exceed nicp.normal_neighbours=6'}
     for label, (error, warnings, matcher) in live.items():
         if label in expected_errors:
             assert expected_errors[label] in error and matcher is None, (label, error)
             continue
         assert error is None, (label, error)
-        applied = label not in ('another node', 'namespaced elsewhere', 'empty')
+        applied = label not in UNADDRESSED
         assert matcher == ('icp' if applied else 'nicp'), (label, matcher)
         assert len(warnings) == (0 if label in ('integer for a double', 'unquoted off',
                                                 'node name') else 1), (label, warnings)
@@ -301,6 +315,11 @@ def test_replay_reads_the_file_for_the_node_name_it_is_given(bag, tmp_path, caps
     assert replay.main([str(bag), '--params-file', str(named), '--node-name', 'front_odom',
                         '--quiet']) == 0
     assert '(icp): processed' in capsys.readouterr().out
-    assert replay.main([str(bag), '--params-file', str(named)]) == 0
+    # Issue 39: without the name nothing in the file applies - an error, not a run on
+    # the defaults that looks like one of the file's settings.
+    assert replay.main([str(bag), '--params-file', str(named)]) == 2
     out, err = capsys.readouterr()
-    assert '(nicp): processed' in out and 'no section for /laser_odom' in err
+    assert out == '' and err == (
+        f'laser_odom_replay: error: params file {named} has no section for /laser_odom (it '
+        'has front_odom): none of its parameters apply, so nothing would be run with it - use '
+        '"/**:" to address the node under any name and namespace\n')

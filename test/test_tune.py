@@ -16,9 +16,10 @@ import pytest
 
 from laser_odom.core.configuration.node import check_values, parameter_specs, settings_from_params
 from laser_odom.core.simulation import simulate
+from laser_odom.core.simulation.odometry import OdometryNoise
 from laser_odom.core.tuning import objective as objective_module
 from laser_odom.core.tuning.objective import FAILED_TRIAL_SCORE, run_trial
-from laser_odom.core.tuning.space import matcher_space, read_space_file, SpaceError
+from laser_odom.core.tuning.space import matcher_space, read_space_file, SpaceError, suggest
 from laser_odom.io.bag_writer import write_bag
 from laser_odom.io.params_file import read_params_files
 from laser_odom.io.tum import write_tum
@@ -49,7 +50,7 @@ def _table(text: str) -> dict[str, list[str]]:
     start = max(i for i, line in enumerate(lines) if line.startswith('matcher'))
     rows = {}
     for line in lines[start + 1:]:
-        if line.startswith('best:'):
+        if line.startswith('best:') or line.split()[0].endswith(':'):  # failures, best
             break
         rows[line.split()[0]] = line.split()[1:]
     return rows
@@ -74,6 +75,29 @@ def test_space_narrows_the_declared_ranges_around_the_start():
     assert space['prior'].choices == ('none', 'constant_velocity', 'odom')
     assert space['global_search'].choices == ('off', 'recover', 'always')
     assert 'plicp.covariance_scale' not in space and 'nicp.damping' not in space
+    # What each scan is matched against is searched (issue 39: ATE 0.14 -> 0.01 m).
+    assert space['reference'].choices == ('scan', 'local_map')
+
+
+def test_no_trial_crosses_an_ordered_pair():
+    """A minimum is never proposed above its maximum.
+
+    Issue 39: nicp.normal_min_neighbours 7 above nicp.normal_neighbours 6 was recommended.
+    """
+    space = matcher_space('nicp', {}, ('none', 'constant_velocity'))
+    dims = {d.name: d for d in space}
+    # A fixed maximum cuts the range; of two searched ones the lower follows the higher.
+    assert dims['global_search_linear'].high == SPECS['global_search_max_linear'].default
+    assert dims['nicp.normal_min_neighbours'].at_most == (
+        'nicp.normal_neighbours', 'nicp.information_neighbours')
+    assert dims['nicp.flat_curvature'].at_most == ('nicp.max_curvature',)
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=5))
+    crossed = 0
+    for _ in range(300):
+        values = suggest(space, study.ask())
+        check_values({**values, 'matcher': 'nicp'})  # raises on a crossed pair
+        crossed += values['nicp.normal_min_neighbours'] == values['nicp.normal_neighbours']
+    assert crossed < 300  # not pinned to the maximum: the range below it is searched
 
 
 def test_space_file_overrides_and_its_mistakes_are_one_line(tmp_path):
@@ -276,6 +300,14 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
     empty.write_text('nicp.max_iterations: [50, 10]\n')
     no_scans = tmp_path / 'no_scans'
     write_bag(no_scans, odometry={'/odom': reference})
+    crossed = tmp_path / 'crossed.yaml'
+    crossed.write_text('/**:\n  ros__parameters:\n    nicp:\n      normal_neighbours: 6\n'
+                       '      normal_min_neighbours: 7\n')
+    other = tmp_path / 'other.yaml'
+    other.write_text('front_odom:\n  ros__parameters:\n    matcher: icp\n')
+    unreachable = tmp_path / 'unreachable.yaml'
+    unreachable.write_text('nicp.normal_min_neighbours: [10, 20]\n'
+                           'nicp.normal_neighbours: [3, 8]\n')
     bag = str(sim / 'bag')
     return {
         'no scans': ([str(no_scans)], 'no LaserScan topic'),
@@ -289,6 +321,13 @@ def _bad_inputs(sim: Path, tmp_path: Path) -> dict[str, tuple[list[str], str]]:
         'sqlite dir': ([bag, '--storage', f'sqlite:///{tmp_path}/missing/x.db'],
                        'cannot open storage'),
         'matcher': ([bag, '--matchers', 'nicp,sift'], "unknown matcher 'sift'"),
+        'crossed pair': ([bag, '--params-file', str(crossed)],
+                         'nicp.normal_min_neighbours=7 must not exceed nicp.normal_neighbours=6'),
+        'no section': ([bag, '--params-file', str(other)],
+                       f'params file {other} has no section for /laser_odom (it has front_odom):'
+                       ' none of its parameters apply, so nothing would be run with it'),
+        'no ordered value': ([bag, '--matchers', 'nicp', '--space', str(unreachable)],
+                             'nicp.normal_min_neighbours <= nicp.normal_neighbours'),
     }
 
 
@@ -312,3 +351,68 @@ def test_a_keyframe_reference_spanning_the_bag_is_accepted(sim, tmp_path, capsys
                  '--trials', '1', '--output', str(tmp_path / 't.yaml'), '--quiet']) == 0
     rows = _table(capsys.readouterr().out)
     assert 0.0 < float(rows['plicp'][0]) < 0.01  # scored against the keyframes (RPE)
+
+
+@pytest.fixture(scope='module')
+def good_odom(tmp_path_factory):
+    """Return a 10 s simulated bag whose wheel odometry beats the laser's RPE.
+
+    Odometry at a fifth of the simulator's default noise: over 10 s its RPE (0.0007)
+    is below nicp's (0.0016), so a trial that rejects every match - and so follows the
+    odometry (prior: odom, rejected_motion: predict) - scores better than the laser.
+    """
+    folder = tmp_path_factory.mktemp('tune_odom')
+    data = simulate('office', duration=10.0, seed=1,
+                    odometry_noise=OdometryNoise().scaled(0.2))
+    write_bag(folder / 'bag', data.scans,
+              odometry={'/ground_truth': data.reference, '/odom': data.odometry})
+    return folder
+
+
+def test_a_trial_whose_matches_are_rejected_fails_with_its_counts(good_odom):
+    bag = load_bag(str(good_odom / 'bag'), None, None, '/odom')
+    laser = run_trial({'matcher': 'nicp', 'prior': 'odom'}, [bag], 'rpe')
+    assert laser.error is None and laser.counts[0]['matched'] == 99
+    # One iteration never converges: 93 of 99 matches rejected, the odometry takes over.
+    prior_only = run_trial({'matcher': 'nicp', 'prior': 'odom', 'nicp.max_iterations': 1},
+                           [bag], 'rpe')
+    assert prior_only.score == FAILED_TRIAL_SCORE
+    assert prior_only.counts[0]['rejected_not_converged'] > 90
+    assert prior_only.error.startswith('laser matches rejected on ')
+    assert 'its trajectory is the motion prior, not the laser' in prior_only.error
+
+
+def test_a_tune_never_recommends_a_run_of_the_prior_alone(good_odom, tmp_path, capsys):
+    """Issue 39: the best of 6 trials was the wheel odometry, every match rejected."""
+    space = tmp_path / 'space.yaml'
+    space.write_text('prior: [odom]\nnicp.max_iterations: [1, 1]\n')  # the laser switched off
+    out = tmp_path / 'tuned.yaml'
+    assert main([str(good_odom / 'bag'), '--matchers', 'nicp', '--trials', '6', '--seed', '3',
+                 '--space', str(space), '--output', str(out), '--quiet']) == 0
+    printed = capsys.readouterr().out
+    default, best, trials, pruned, failed = _table(printed)['nicp'][:5]
+    # Only the default trial (40 iterations) ran on the laser: it is the best.
+    assert float(best) == float(default) and 0.0 < float(best) < 0.01
+    assert int(failed) + int(pruned) == 5 and int(failed) >= 1
+    assert 'nicp.max_iterations' not in read_params_files([out]).values
+    lines = printed.splitlines()
+    failure = next(line for line in lines if line.startswith('nicp: '))
+    assert 'trials failed, first trial ' in failure and 'rejected_not_converged' in failure
+    assert 'best run on bag: processed 100, matched 99, degenerate 0, failed (rejected) 0' \
+        in lines
+
+
+def test_nothing_is_recommended_when_every_trial_fails(good_odom, tmp_path, capsys):
+    space = tmp_path / 'space.yaml'
+    space.write_text('prior: [odom]\nnicp.max_iterations: [1, 1]\n')
+    start = tmp_path / 'start.yaml'
+    start.write_text('/**:\n  ros__parameters:\n    prior: odom\n    nicp:\n'
+                     '      max_iterations: 1\n')
+    out = tmp_path / 'tuned.yaml'
+    assert main([str(good_odom / 'bag'), '--matchers', 'nicp', '--trials', '2', '--seed', '3',
+                 '--space', str(space), '--params-file', str(start), '--output', str(out),
+                 '--quiet']) == 1
+    err = capsys.readouterr().err
+    assert err == (f'laser_odom_tune: error: no trial of nicp ran on the laser (see the '
+                   f'failures above); nothing written to {out}\n')
+    assert not out.exists()

@@ -28,13 +28,23 @@ class ParamInfo:
     high: float | None = None
     choices: Sequence[str] | None = None
     read_only: bool = False
+    at_most: tuple[str, ...] = ()
+    """Parameters of the same group (field names) this one must not exceed: a minimum
+    above its maximum (``normal_min_neighbours`` above ``normal_neighbours``) would
+    leave nothing to use - every point without a normal, every match rejected."""
 
 
 def param(default: Any, description: str, low: float | None = None,
           high: float | None = None, choices: Sequence[str] | None = None,
-          read_only: bool = False) -> Any:
-    """Declare a configuration field with its default, description and valid range."""
-    info = ParamInfo(description, low, high, tuple(choices) if choices else None, read_only)
+          read_only: bool = False, at_most: str | Sequence[str] = ()) -> Any:
+    """Declare a configuration field with its default, description and valid range.
+
+    ``at_most`` names the fields of the same configuration whose values this one must
+    not exceed; :func:`laser_odom.core.configuration.node.check_order` checks every such
+    pair wherever values are read.
+    """
+    info = ParamInfo(description, low, high, tuple(choices) if choices else None, read_only,
+                     (at_most,) if isinstance(at_most, str) else tuple(at_most))
     return field(default=default, metadata={'param': info})
 
 

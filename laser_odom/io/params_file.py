@@ -159,29 +159,40 @@ def parse_params_file(path: str | Path) -> ParamsFile:
     return parsed
 
 
-def section_warnings(files: Sequence[ParamsFile], node_fqn: str) -> list[str]:
-    """Return a warning for every file none of whose sections applies to the node."""
+def section_warnings(files: Sequence[ParamsFile], node_fqn: str,
+                     consequence: str = 'the node runs on its defaults for them') -> list[str]:
+    """Return a warning for every file none of whose sections applies to the node.
+
+    The node starts anyway, as every ROS 2 node does with such a file; the warning
+    says that it runs on its defaults, and how to address it.
+    """
     warnings = []
     for parsed in files:
         if not parsed.sections:
-            warnings.append(f'params file {parsed.path} is empty; nothing in it applies')
+            warnings.append(f'params file {parsed.path} is empty: none of its parameters '
+                            f'apply, {consequence}')
         elif parsed.values_for(node_fqn) is None:
             warnings.append(
                 f'params file {parsed.path} has no section for {node_fqn} (it has '
-                f'{", ".join(parsed.names())}); none of its parameters apply - use "/**:" '
-                'to address the node under any name and namespace')
+                f'{", ".join(parsed.names())}): none of its parameters apply, {consequence} '
+                '- use "/**:" to address the node under any name and namespace')
     return warnings
 
 
-def read_params_files(paths: Sequence[str | Path],
-                      node_fqn: str = '/' + NODE_NAME) -> CheckedValues:
+def read_params_files(paths: Sequence[str | Path], node_fqn: str = '/' + NODE_NAME,
+                      require_section: bool = False) -> CheckedValues:
     """Return the node's values from params files, judged as the node judges them.
 
     Raises :class:`ParamsFileError` for an unreadable or malformed file and for a value
-    the node would refuse (wrong type, out of range); names the node does not have and
-    files with no section for ``node_fqn`` are reported in ``warnings``.
+    the node would refuse (wrong type, out of range); names the node does not have are
+    reported in ``warnings``, and so are files with no section for ``node_fqn`` - or,
+    with ``require_section`` (the replay, the benchmark, the tuner: a run on the
+    defaults would be a run of settings the user did not ask for), they are an error.
     """
     files = [parse_params_file(path) for path in paths]
+    if require_section:
+        for message in section_warnings(files, node_fqn, 'so nothing would be run with it'):
+            raise ParamsFileError(message)
     values: dict[str, Any] = {}
     for parsed in files:
         values.update(parsed.values_for(node_fqn) or {})

@@ -79,6 +79,8 @@ def comment(spec: ParameterSpec) -> str:
         low = '-inf' if info.low is None else f'{info.low:g}'
         high = 'inf' if info.high is None else f'{info.high:g}'
         text += f' [{low}, {high}]'
+    if info.at_most:
+        text += f' (at most {" and ".join(info.at_most)})'
     if info.read_only:
         text += ' (read-only)'
     return text
@@ -146,6 +148,8 @@ def markdown_table() -> str:
             low = '-inf' if info.low is None else f'{info.low:g}'
             high = 'inf' if info.high is None else f'{info.high:g}'
             accepted = f'[{low}, {high}]'
+            if info.at_most:
+                accepted += ', at most ' + ' and '.join(f'`{h}`' for h in info.at_most)
         else:
             accepted = 'true \\| false' if isinstance(spec.default, bool) else ''
         text = info.description + (' (read-only)' if info.read_only else '')

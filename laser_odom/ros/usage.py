@@ -106,8 +106,11 @@ def usage() -> str:
         'usage: laser_odom_node [-h] [--ros-args [-r scan:=/my_scan] [-r __ns:=/robot1]',
         '                       [--params-file FILE] [-p NAME:=VALUE] ...]',
         '',
-        'Scan-to-scan 2D laser odometry (ICP, PL-ICP, NICP, IMLS-ICP) as a ROS 2 node',
-        f'(node name {PACKAGE}). With colcon: ros2 run {PACKAGE} laser_odom_node --ros-args ...',
+        '2D laser odometry (ICP, PL-ICP, NICP, IMLS-ICP) as a ROS 2 node (node name '
+        f'{PACKAGE}):',
+        'each scan is matched against the previous scan (reference: scan, the default) or',
+        'against a local map of the recent scans (reference: local_map: less drift).',
+        f'With colcon: ros2 run {PACKAGE} laser_odom_node --ros-args ...',
         '',
         TOPICS,
         '',

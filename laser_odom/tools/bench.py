@@ -99,7 +99,9 @@ def progress_wanted(args: argparse.Namespace) -> bool:
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Parse the command line."""
     parser = argparse.ArgumentParser(
-        prog='laser_odom_bench', description='Score matchers on simulated and real datasets.')
+        prog='laser_odom_bench', description='Score matchers on simulated and real datasets, '
+        'matching each scan against the previous scan and/or a local map of the recent '
+        'scans (--reference-modes scan,local_map).')
     parser.add_argument('--matchers', default=','.join(matcher_names()),
                         help='comma-separated matcher names (default: all)')
     parser.add_argument('--datasets', default=None,
@@ -267,7 +269,7 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
     loaders = dataset_loaders(args.data_dir)
     values: dict[str, Any] = {}
     if args.params_file is not None:
-        checked = read_params_files([args.params_file])
+        checked = read_params_files([args.params_file], require_section=True)
         values = checked.values
         for warning in checked.warnings:
             LOGGER.warning('laser_odom_bench: warning: %s', warning)
@@ -379,12 +381,16 @@ def main_live(args: argparse.Namespace) -> int:
         matchers = _split(args.matchers, matcher_names(), 'matcher')
         if args.rate <= 0 or args.beams < 2 or args.duration <= 0:
             raise ValueError('--rate and --duration must be positive, --beams at least 2')
+        values: dict[str, Any] = {}
+        if args.params_file is not None:  # the node reads it too; checked here first
+            values = read_params_files([args.params_file], require_section=True).values
         references = (_split(args.reference_modes, REFERENCE_MODES, 'reference value')
-                      if args.reference_modes is not None else ['scan'])
+                      if args.reference_modes is not None else [values.get('reference',
+                                                                           'scan')])
         from laser_odom.tools.bench_live import format_live, run_live
         rows = run_live(matchers, args.beams, args.rate, args.duration,
-                        references=references)
-    except (ValueError, RuntimeError) as err:
+                        references=references, params_file=args.params_file)
+    except (ValueError, RuntimeError) as err:  # ParamsFileError is a ValueError
         print(f'laser_odom_bench: error: {err}', file=sys.stderr)
         return 2
     if args.json is not None:

@@ -95,16 +95,22 @@ def process_cpu_seconds(pid: int) -> float:
 class LiveSession:
     """One node process and a publisher/subscriber peer on a private domain."""
 
-    def __init__(self, matcher: str, domain_id: int, reference: str = 'scan') -> None:
-        """Start the node with ``matcher`` matching against ``reference``, and the peer."""
+    def __init__(self, matcher: str, domain_id: int, reference: str = 'scan',
+                 params_file: Path | None = None) -> None:
+        """Start the node with ``matcher`` matching against ``reference``, and the peer.
+
+        ``params_file`` (``--params-file``) is the node's too; ``matcher`` and
+        ``reference`` override it, as ``-p`` overrides a params file in ROS 2.
+        """
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
         root = str(Path(__file__).resolve().parents[2])
         env['PYTHONPATH'] = os.pathsep.join(p for p in (root, env.get('PYTHONPATH', '')) if p)
         self.log = tempfile.TemporaryFile('w+')
         self.started = time.monotonic()
         self.process = subprocess.Popen(
-            [sys.executable, '-m', 'laser_odom.ros.node', '--ros-args', '-p',
-             f'matcher:={matcher}', '-p', f'reference:={reference}', '-p',
+            [sys.executable, '-m', 'laser_odom.ros.node', '--ros-args',
+             *(['--params-file', str(params_file)] if params_file is not None else []),
+             '-p', f'matcher:={matcher}', '-p', f'reference:={reference}', '-p',
              'publish_tf:=false'],
             env=env, stdout=self.log, stderr=subprocess.STDOUT)
         self.context = Context()
@@ -148,9 +154,10 @@ class LiveSession:
         rclpy.try_shutdown(context=self.context)
 
 
-def run_matcher(matcher: str, messages: list, rate: float, reference: str = 'scan') -> LiveRow:
+def run_matcher(matcher: str, messages: list, rate: float, reference: str = 'scan',
+                params_file: Path | None = None) -> LiveRow:
     """Stream ``messages`` at ``rate`` Hz to a fresh node running ``matcher``."""
-    session = LiveSession(matcher, random.randint(101, 230), reference)
+    session = LiveSession(matcher, random.randint(101, 230), reference, params_file)
     try:
         if not session.spin_until(lambda: session.publisher.get_subscription_count() > 0
                                   and session.node.count_publishers('odom') > 0,
@@ -193,12 +200,16 @@ def run_matcher(matcher: str, messages: list, rate: float, reference: str = 'sca
 
 
 def run_live(matchers: Sequence[str], beams: int, rate: float, duration: float,
-             fov_deg: float = 270.0, references: Sequence[str] = ('scan',)) -> list[LiveRow]:
-    """Run every matcher against every reference on one simulated stream; return the rows."""
+             fov_deg: float = 270.0, references: Sequence[str] = ('scan',),
+             params_file: Path | None = None) -> list[LiveRow]:
+    """Run every matcher against every reference on one simulated stream; return the rows.
+
+    Every node is started with ``params_file`` (``--params-file``), if given.
+    """
     laser = LaserModel(beams=beams, fov=math.radians(fov_deg), rate=rate, max_range=30.0)
     dataset = simulate('office', duration=duration, laser=laser, seed=7)
     messages = [(scan.stamp_ns, scan_to_msg(scan)) for scan in dataset.scans]
-    return [run_matcher(matcher, messages, rate, reference)
+    return [run_matcher(matcher, messages, rate, reference, params_file)
             for matcher in matchers for reference in references]
 
 

@@ -23,6 +23,7 @@ value the node refuses) - each said in one line.
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import sys
 import time
@@ -177,10 +178,7 @@ class Ctl:
         """Set a parameter from its text; CtlError with the node's reason if it refuses."""
         known = self.values()
         if name not in known:
-            close = [n for n in known if n.endswith('.' + name) or name in n]
-            hint = f' (did you mean {close[0]!r}?)' if close else ''
-            raise CtlError(f'{self.name} has no parameter {name!r}{hint}; '
-                           f'{PROG} params lists them')
+            raise CtlError(no_parameter(self.name, name, list(known)))
         message = ParameterMsg(name=name, value=get_parameter_value(text))
         answer = self._result(self._parameters().set_parameters([message]), 'set_parameters')
         outcome = answer.results[0]
@@ -223,6 +221,19 @@ class Ctl:
         return found[-1]
 
 
+def no_parameter(node: str, name: str, known: list[str]) -> str:
+    """Return the error for a parameter the node does not have, with the likely intent.
+
+    The closest declared name (difflib, as the node's own warning for a params file)
+    is the intent of a typo (``max_scan_gapp``); else a matcher parameter given
+    without its matcher (``max_iterations``: ``nicp.max_iterations``).
+    """
+    close = difflib.get_close_matches(name, known, n=1, cutoff=0.8) or [
+        n for n in known if n.endswith('.' + name) or name in n]
+    hint = f' (did you mean {close[0]!r}?)' if close else ''
+    return f'{node} has no parameter {name!r}{hint}; {PROG} params lists them'
+
+
 def status_lines(status: DiagnosticStatus) -> list[str]:
     """Return a diagnostics status as ``name: LEVEL message`` and ``  key: value`` lines."""
     level = LEVELS.get(status.level, str(status.level))
@@ -250,8 +261,7 @@ def run(args: argparse.Namespace, ros_args: list[str]) -> int:
         elif args.command == 'get':
             values = ctl.values()
             if args.name not in values:
-                raise CtlError(f'{ctl.name} has no parameter {args.name!r}; '
-                               f'{PROG} params lists them')
+                raise CtlError(no_parameter(ctl.name, args.name, list(values)))
             value = values[args.name]
             print(value if isinstance(value, str) else yaml_value(value))
         elif args.command == 'set':

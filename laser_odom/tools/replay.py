@@ -42,6 +42,7 @@ from laser_odom.io.bag_reader import (
 from laser_odom.io.errors import BagWriteError, OutputExistsError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import reader_may_leave
+from laser_odom.ros.graph import DISCOVERY_TIMEOUT, STARTUP_TIMEOUT
 from laser_odom.tools.arguments import number_in
 from laser_odom.tools.plots import (
     check_plot_output, plot_replay, PlotError, ScanPointsRecorder)
@@ -49,7 +50,7 @@ from laser_odom.tools.quiet import warnings_silenced
 from laser_odom.tools.replay_report import (
     DEFAULT_MIN_COVERAGE, print_summary, read_reference, ReplayError, ReplayRecord,
     write_outputs)
-from laser_odom.tools.replay_target import params_node_name
+from laser_odom.tools.replay_target import ANSWER_TIMEOUT, params_node_name
 from laser_odom.tools.stopping import stop_between_scans
 
 PROG = 'laser_odom_replay'
@@ -61,8 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     p = argparse.ArgumentParser(
         prog=PROG, description='Run the laser odometry over the scans of a recorded bag, '
-        'in-process or (--live) through a running laser_odom_node; write the trajectory '
-        'as TUM and/or a bag, and score it against a reference.')
+        'in-process or (--live) through a running laser_odom_node - each scan matched '
+        'against the previous scan or, with reference: local_map in the params file, a '
+        'local map of the recent scans; write the trajectory as TUM and/or a bag, and '
+        'score it against a reference.')
     p.add_argument('bag', help='ROS 2 bag directory, .db3/.mcap file, or ROS 1 .bag file')
     p.add_argument('--scan-topic', help='LaserScan topic (default: the only one in the bag)')
     p.add_argument('--matcher', choices=matcher_names(),
@@ -107,9 +110,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help='node name (with namespace, if any) the params file is read for, '
                    'as the node reads it; --live: also the node whose ~/reset and '
                    'diagnostics are used (default: laser_odom, or with --live the one found)')
-    p.add_argument('--timeout', type=float, default=2.0,
+    p.add_argument('--timeout', type=number_in(float, 0.0, 1e6, low_open=True, what='number'),
+                   default=None, metavar='S',
                    help='--live: seconds to wait for the odometry of one scan (with '
-                   '--rate: of the last one)')
+                   f'--rate: of the last one; default {ANSWER_TIMEOUT:g}), and at most '
+                   'for the node to appear, start and subscribe (default: '
+                   f'{DISCOVERY_TIMEOUT:g} s to appear, up to {STARTUP_TIMEOUT:g} s while '
+                   'it compiles its kernels)')
     p.add_argument('--rate', type=number_in(float, 0.0, 1e6, low_open=True, what='number'),
                    metavar='R',
                    help='--live: play the scans (and prior messages) at R times their '
@@ -124,12 +131,14 @@ def build_parser() -> argparse.ArgumentParser:
 def load_settings(args: argparse.Namespace) -> NodeSettings:
     """Return what the node would run with: the params file read as the node reads it.
 
-    The file's warnings (unknown names, no section for the node) go to stderr, as the
-    node logs them; ``--matcher`` and ``--prior`` override the file.
+    The file's warnings (unknown names) go to stderr, as the node logs them; a file
+    with no section for the node is an error (the node would run on its defaults);
+    ``--matcher`` and ``--prior`` override the file.
     """
     values: dict[str, Any] = {}
     if args.params_file is not None:
-        checked = read_params_files([args.params_file], params_node_name(args))
+        checked = read_params_files([args.params_file], params_node_name(args),
+                                    require_section=True)
         for warning in checked.warnings:
             warner(args.quiet)(warning)
         values = checked.values

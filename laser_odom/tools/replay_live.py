@@ -53,7 +53,7 @@ from laser_odom.ros.graph import (
 from laser_odom.ros.priors import PRIOR_TOPICS
 from laser_odom.tools.playback import play, RecordedClock
 from laser_odom.tools.replay_report import ReplayError, ReplayRecord
-from laser_odom.tools.replay_target import live_target
+from laser_odom.tools.replay_target import answer_timeout, live_target
 
 DIAGNOSTICS_WAIT = 2.5
 """Seconds to wait for a diagnostics report (the node sends one per second)."""
@@ -77,6 +77,9 @@ class _Client:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.target = live_target(args)
+        # --timeout bounds the whole wait for the node (to appear, start, subscribe).
+        self.deadline = None if args.timeout is None else time.monotonic() + args.timeout
+        self.timeout = args.timeout
         found = self._find(args)
         target = self.target
         self.node_name = found.name if found else (
@@ -113,10 +116,12 @@ class _Client:
         """
         target = self.target
         fallback = bool(target.scan_topic and target.odom_topic) or target.namespace is not None
+        discovery = DISCOVERY_TIMEOUT if self.deadline is None else args.timeout
+        bounded = {} if self.deadline is None else {'startup_timeout': args.timeout}
         try:
             return wait_for_node(
                 self.node, target, lambda seconds: self.spin_until(lambda: False, seconds),
-                discovery_timeout=DISCOVERY_TIMEOUT / 3 if fallback else DISCOVERY_TIMEOUT,
+                discovery_timeout=discovery / 3 if fallback else discovery, **bounded,
                 say=None if args.quiet else (
                     lambda message: print(f'--live: {message}', file=sys.stderr, flush=True)),
                 more_options='; with remapped topics, --scan-topic-out and --odom-topic-in')
@@ -173,11 +178,14 @@ class _Client:
                     and self.odom_sub.get_publisher_count() > 0
                     and (not self.prior_listened or self.prior_pub.get_subscription_count() > 0))
 
-        if not self.spin_until(matched, DISCOVERY_TIMEOUT):
+        timeout = DISCOVERY_TIMEOUT if self.deadline is None else max(
+            self.deadline - time.monotonic(), 0.0)
+        if not self.spin_until(matched, timeout):
+            within = DISCOVERY_TIMEOUT if self.deadline is None else self.timeout
             raise ReplayError(
                 f'--live: nothing subscribes to {self.scan_pub.topic_name} and publishes '
                 f'{self.odom_sub.topic_name} on {domain_text()} within '
-                f'{DISCOVERY_TIMEOUT:.0f} s; start laser_odom_node, or {OPTIONS_HINT}')
+                f'{within:g} s; start laser_odom_node, or {OPTIONS_HINT}')
         self.spin_until(lambda: False, 0.3)  # let the node's side of the match settle
 
     def reset_node(self) -> bool:
@@ -265,7 +273,7 @@ def _run_lock_step(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
         client.publish_priors(feed, feed.advance(scan.stamp_ns))
         sent = time.perf_counter()
         client.scan_pub.publish(scan_to_msg(scan))
-        if client.spin_until(lambda: scan.stamp_ns in client.odometry, args.timeout):
+        if client.spin_until(lambda: scan.stamp_ns in client.odometry, answer_timeout(args)):
             msg, arrived = client.odometry.pop(scan.stamp_ns)
             _record_answer(record, msg, arrived - sent)
         else:
@@ -330,7 +338,7 @@ def _run_at_rate(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
         raise
     finally:
         if sent and not interrupted:
-            _settle(client, list(sent), args.timeout)
+            _settle(client, list(sent), answer_timeout(args))
         for stamp_ns, at in sent.items():
             answer = client.odometry.pop(stamp_ns, None)
             if answer is not None:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from laser_odom.core.evaluation.coverage import reference_coverage
-from laser_odom.core.evaluation.metrics import distance_travelled, evaluate
+from laser_odom.core.evaluation.metrics import distance_between, distance_travelled, evaluate
 from laser_odom.core.pipeline.estimate import OUTCOMES
 from laser_odom.core.trajectory import Trajectory
 from laser_odom.io.bag_writer import write_message_bag
@@ -251,7 +251,8 @@ def reference_lines(record: ReplayRecord, reference_path: Any,
     if reference is None:
         reference = read_reference(reference_path)
     errors = evaluate(record.trajectory(), reference)
-    travelled = distance_travelled(reference)
+    # The reference's path over the scans processed, not over the whole bag (Ctrl-C).
+    travelled = distance_between(reference, min(record.stamps_ns), max(record.stamps_ns))
     share = f' = {100 * errors.ate_rms / travelled:.2f} % of' if travelled > 0 else ' over'
     return [
         f'reference {reference_path}: ATE {errors.ate_rms:.4f} m (RMS, SE(2)-aligned, '

@@ -11,6 +11,14 @@ import argparse
 
 from laser_odom.ros.graph import NODE_NAME, Target
 
+ANSWER_TIMEOUT = 2.0
+"""Seconds ``--live`` waits for the odometry of one scan when ``--timeout`` is not given."""
+
+
+def answer_timeout(args: argparse.Namespace) -> float:
+    """Return how long ``--live`` waits for one scan's odometry (``--timeout``)."""
+    return ANSWER_TIMEOUT if args.timeout is None else float(args.timeout)
+
 
 def live_target(args: argparse.Namespace) -> Target:
     """Return the node ``--live`` drives, as far as the options name it (the rest is found)."""

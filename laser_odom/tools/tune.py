@@ -8,9 +8,15 @@ against a reference when every bag has one (``--reference REF.tum`` per bag, or 
 matcher (default and best score, trials, wall time) and writes the best matcher's
 settings as a params file the node loads as it is (``--output``).
 
-Exit codes: 0 ok, 1 runtime failure, 2 input error (a bag without scans, a reference
-that does not overlap its bag, an empty ``--space`` range, a storage that cannot be
-opened, an unknown matcher, Optuna or matplotlib missing) - each said in one line.
+A trial whose laser matches were mostly rejected failed, whatever it scored
+(:func:`laser_odom.core.tuning.objective.laser_failure`): it is never recommended, and
+the table is followed by why the first failed trial of each matcher failed and by the
+best trial's counts per bag (matched, degenerate, rejected), as the replay prints them.
+
+Exit codes: 0 ok, 1 runtime failure (also: every trial failed, nothing written), 2
+input error (a bag without scans, a reference that does not overlap its bag, an empty
+``--space`` range, a storage that cannot be opened, an unknown matcher, Optuna or
+matplotlib missing) - each said in one line.
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ from typing import Any, Sequence
 from laser_odom.core.configuration.node import parameter_specs
 from laser_odom.core.matchers import matcher_names
 from laser_odom.core.trajectory import RecordedBag
-from laser_odom.core.tuning.objective import OBJECTIVES, REFERENCE_FREE
+from laser_odom.core.tuning.objective import describe_counts, OBJECTIVES, REFERENCE_FREE
 from laser_odom.core.tuning.space import (
     BASE_PRIORS, matcher_space, read_space_file, SpaceError)
 from laser_odom.core.tuning.study import (
@@ -49,12 +55,23 @@ class TuneError(Exception):
     """An input error; ``str(error)`` is the one-line message (exit code 2)."""
 
 
+class NoUsableTrial(Exception):
+    """Every trial failed (exit code 1): there is nothing to recommend."""
+
+
+def failure_lines(summaries: Sequence[StudySummary]) -> list[str]:
+    """Return, per matcher with failed trials, how many and why the first one failed."""
+    return [f'{s.matcher}: {s.failed} of {s.trials} trials failed, first {s.failure}'
+            for s in summaries if s.failure is not None]
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     p = argparse.ArgumentParser(
-        prog=PROG, description='Tune the matchers and pipeline settings on your own bags '
-        'with Optuna, against a reference or reference-free; write the best as a params '
-        'file for laser_odom_node.')
+        prog=PROG, description='Tune the matchers and pipeline settings - among them what '
+        'each scan is matched against, the previous scan or a local map of the recent scans '
+        '(reference: scan, local_map) - on your own bags with Optuna, against a reference or '
+        'reference-free; write the best as a params file for laser_odom_node.')
     p.add_argument('bags', nargs='+', metavar='BAG', help='ROS 2 or ROS 1 bag')
     p.add_argument('--matchers', help='comma-separated matchers (default: all: '
                    f'{",".join(matcher_names())})')
@@ -224,7 +241,7 @@ def tune(args: argparse.Namespace) -> int:
     overrides = read_space_file(args.space, matchers) if args.space is not None else {}
     base: dict[str, Any] = {}
     if args.params_file is not None:
-        checked = read_params_files([args.params_file])
+        checked = read_params_files([args.params_file], require_section=True)
         for message in checked.warnings:
             warn(message)
         base = {k: v for k, v in checked.values.items() if k != 'matcher'}
@@ -253,6 +270,10 @@ def tune(args: argparse.Namespace) -> int:
         summaries = summarize(job, storage, existing)
         start = 'default' if args.params_file is None else 'start'
         winner = min(summaries, key=lambda s: s.best if math.isfinite(s.best) else math.inf)
+        if not math.isfinite(winner.best):
+            print('\n'.join(table_lines(summaries, objective, start) + failure_lines(summaries)))
+            raise NoUsableTrial('no trial of ' + ', '.join(matchers) + ' ran on the laser (see '
+                                f'the failures above); nothing written to {args.output}')
         header = [f'{PROG}: best of {", ".join(matchers)} on {", ".join(args.bags)}',
                   f'score {objective.replace("_", "-")}, lower is better; study '
                   f'{args.study_name}-{winner.matcher}, {winner.total} trials']
@@ -261,9 +282,11 @@ def tune(args: argparse.Namespace) -> int:
                                              winner, header))
         if args.plot is not None:
             plot(args.plot, job, storage, bags, summaries)
-        print('\n'.join(table_lines(summaries, objective, start)))
+        print('\n'.join(table_lines(summaries, objective, start) + failure_lines(summaries)))
         print(f'best: {winner.matcher} {winner.best:.5g} ({start} {winner.default:.5g}); '
               f'wrote {args.output}')
+        for bag, counts in zip(bags, winner.best_counts):
+            print(f'best run on {Path(bag.name).name}: {describe_counts(counts)}')
         if args.plot is not None:
             print(f'wrote {args.plot}')
     finally:
@@ -285,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
             ParamsFileError) as err:
         print(f'{PROG}: error: {err}', file=sys.stderr)
         return 2
-    except RuntimeError as err:  # a --jobs process died
+    except (RuntimeError, NoUsableTrial) as err:  # a --jobs process died, no usable trial
         print(f'{PROG}: error: {err}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -59,13 +59,13 @@ class NodeConfig:
         'laser_x/laser_y/laser_yaw/laser_upside_down (needs tf2_ros).', read_only=True)
     diagnostics_warn_failure_rate: float = param(
         0.2, 'Diagnostics WARN when this fraction of the matches in the last period failed.',
-        0.0, 1.0)
+        0.0, 1.0, at_most='diagnostics_error_failure_rate')
     diagnostics_error_failure_rate: float = param(
         0.5, 'Diagnostics ERROR when this fraction of the matches in the last period failed.',
         0.0, 1.0)
     diagnostics_warn_processing_time: float = param(
         0.1, 'Diagnostics WARN when the median processing time per scan exceeds this [s].',
-        0.0, 60.0)
+        0.0, 60.0, at_most='diagnostics_error_processing_time')
     diagnostics_error_processing_time: float = param(
         0.5, 'Diagnostics ERROR when the median processing time per scan exceeds this [s].',
         0.0, 60.0)
@@ -119,17 +119,54 @@ def node_config_from_params(values: Mapping[str, Any]) -> NodeConfig:
     return replace_checked(NodeConfig(), {k: v for k, v in values.items() if k in names})
 
 
+def ordered_pairs(specs: list[ParameterSpec] | None = None) -> list[tuple[str, str]]:
+    """Return every ``(low, high)`` pair of parameters whose values must not cross.
+
+    The pairs are declared beside the parameters (``param(..., at_most=...)``): a
+    minimum and its maximum, a warning and its error threshold, a matcher's
+    ``normal_min_neighbours`` and ``normal_neighbours`` - a matcher's pairs under
+    its prefix (``nicp.normal_min_neighbours``, ``nicp.normal_neighbours``).
+    """
+    pairs = []
+    for spec in parameter_specs() if specs is None else specs:
+        prefix = spec.name.rpartition('.')[0]
+        pairs += [(spec.name, f'{prefix}.{high}' if prefix else high)
+                  for high in spec.info.at_most]
+    return pairs
+
+
+def order_error(low: str, low_value: Any, high: str, high_value: Any) -> str:
+    """Return the one-line reason a pair is refused, naming both parameters."""
+    return f'{low}={low_value:g} must not exceed {high}={high_value:g}'
+
+
+def check_order(values: Mapping[str, Any]) -> None:
+    """Raise :class:`ParameterError` when a pair of :func:`ordered_pairs` is crossed.
+
+    ``values`` may be partial: a parameter it does not set has its default. The node
+    (at start-up and on every ``ros2 param set``), the replay, the benchmark and the
+    tuner all reach this through :func:`settings_from_params`, so a crossed pair is
+    refused in the same words everywhere.
+    """
+    specs = parameter_specs()
+    defaults = {spec.name: spec.default for spec in specs}
+    for low, high in ordered_pairs(specs):
+        low_value, high_value = values.get(low, defaults[low]), values.get(high, defaults[high])
+        if low_value > high_value:
+            raise ParameterError(order_error(low, low_value, high, high_value))
+
+
 def settings_from_params(values: Mapping[str, Any]) -> NodeSettings:
-    """Validate a complete set of values; raise :class:`ParameterError` with a reason."""
+    """Validate a complete set of values; raise :class:`ParameterError` with a reason.
+
+    Each value is judged on its own (type, range), then every ordered pair
+    (:func:`check_order`).
+    """
     node = node_config_from_params(values)
-    if node.diagnostics_warn_failure_rate > node.diagnostics_error_failure_rate:
-        raise ParameterError('diagnostics_warn_failure_rate must not exceed '
-                             'diagnostics_error_failure_rate')
-    if node.diagnostics_warn_processing_time > node.diagnostics_error_processing_time:
-        raise ParameterError('diagnostics_warn_processing_time must not exceed '
-                             'diagnostics_error_processing_time')
-    return NodeSettings(pipeline_config_from_params(values),
-                        prior_config_from_params(values), node)
+    settings = NodeSettings(pipeline_config_from_params(values),
+                            prior_config_from_params(values), node)
+    check_order(values)
+    return settings
 
 
 def check_change(values: Mapping[str, Any], changes: Mapping[str, Any],

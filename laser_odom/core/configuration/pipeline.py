@@ -117,7 +117,7 @@ class GlobalSearchConfig:
         'after a rejection - or the local match failed) or always.', choices=SEARCH_MODES)
     global_search_linear: float = param(
         1.5, 'Half-width [m] of the searched window in x and y, around the prediction.',
-        0.0, 20.0)
+        0.0, 20.0, at_most='global_search_max_linear')
     global_search_angular: float = param(
         math.pi / 2, 'Half-width [rad] of the searched window in rotation.', 0.0, math.pi)
     global_search_resolution: float = param(

@@ -77,6 +77,25 @@ def distance_travelled(trajectory: Trajectory) -> float:
     return float(np.sum(np.hypot(steps[:, 0], steps[:, 1])))
 
 
+def distance_between(trajectory: Trajectory, start_ns: int, end_ns: int) -> float:
+    """Return the path length [m] of ``trajectory`` from ``start_ns`` to ``end_ns``.
+
+    The ends are interpolated (clipped to the trajectory's span): the distance a
+    reference covers over the scans of a run that processed only part of a bag
+    (stopped with Ctrl-C, ``--max-scans``), not the whole bag's.
+    """
+    if len(trajectory) < 2 or end_ns <= start_ns:
+        return 0.0
+    stamps = trajectory.stamps_ns
+    start_ns, end_ns = max(int(start_ns), int(stamps[0])), min(int(end_ns), int(stamps[-1]))
+    inside = (stamps > start_ns) & (stamps < end_ns)
+    ends = [trajectory.interpolate(start_ns), trajectory.interpolate(end_ns)]
+    if end_ns <= start_ns or ends[0] is None or ends[1] is None:
+        return 0.0
+    poses = np.vstack([ends[0], trajectory.poses[inside], ends[1]])
+    return distance_travelled(Trajectory(np.arange(len(poses)), poses))
+
+
 def associate(estimate: Trajectory, reference: Trajectory,
               max_offset_ns: int = DEFAULT_MAX_OFFSET_NS) -> tuple[np.ndarray, np.ndarray]:
     """Pair reference and estimate poses by stamp; return index arrays (reference, estimate).

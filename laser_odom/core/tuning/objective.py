@@ -16,14 +16,21 @@ meant here. The run is then scored, lower being better:
   estimated poses, plus, weighted, the disagreement with wheel odometry
   (:func:`laser_odom.core.evaluation.map_quality.reference_free_score`).
 
-Several bags score the mean of their scores. This module does not import Optuna:
-the tool passes a ``report`` callback that may stop a hopeless trial (pruning).
+Several bags score the mean of their scores. A trial whose laser matches were
+mostly rejected (more than :data:`MAX_REJECTED_SHARE` of a bag's matches) has failed,
+whatever its score: its trajectory is the motion prior's (``rejected_motion:
+predict``) or standing still, not the laser's, and wheel odometry can score a better
+RPE over a short bag while it drifts away over a long one. The counts of every bag
+(matched, degenerate, rejected and why) come back with the score, as the replay
+prints them. This module does not import Optuna: the tool passes a ``report``
+callback that may stop a hopeless trial (pruning).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -52,6 +59,10 @@ FAILED_STEP_PENALTY = 0.01
 """Added to the ``rpe`` score per failed step [m]: a run with one lost step scores
 like one whose mean error is 1 cm worse."""
 
+MAX_REJECTED_SHARE = 0.5
+"""A trial whose matches were rejected on more than this share of a bag's scans has
+failed: the laser no longer makes its trajectory."""
+
 FAILED_TRIAL_SCORE = 1e3
 """The score of a trial that cannot run (a refused combination, an exception, a
 non-finite score): far above any real score, so the sampler avoids the region, and
@@ -69,6 +80,35 @@ class TrialResult:
     bag_scores: list[float] = field(default_factory=list)
     error: str | None = None
     trajectories: list[Trajectory] = field(default_factory=list)
+    counts: list[dict[str, int]] = field(default_factory=list)
+    """Per bag: scans processed, matched, degenerate, rejected and each rejection
+    reason (``rejected_<reason>``), as the replay counts them."""
+
+
+def match_counts(counters: Mapping[str, int]) -> dict[str, int]:
+    """Return what the replay's summary counts of a run: outcomes and rejection reasons."""
+    counts = {name: int(counters.get(name, 0))
+              for name in ('processed', 'matched', 'degenerate', 'rejected')}
+    counts.update({name: int(value) for name, value in sorted(counters.items())
+                   if name.startswith('rejected_') and value})
+    return counts
+
+
+def describe_counts(counts: Mapping[str, int]) -> str:
+    """Return the counts in the replay's words (``matched 95, ... failed (rejected) 2``)."""
+    reasons = ', '.join(f'{k} {v}' for k, v in counts.items() if k.startswith('rejected_'))
+    return (f'processed {counts["processed"]}, matched {counts["matched"]}, degenerate '
+            f'{counts["degenerate"]}, failed (rejected) {counts["rejected"]}'
+            + (f' ({reasons})' if reasons else ''))
+
+
+def laser_failure(counts: Mapping[str, int], bag: str) -> str | None:
+    """Return why a run is not the laser's (most matches rejected), or None."""
+    attempts = counts['matched'] + counts['degenerate'] + counts['rejected']
+    if attempts == 0 or counts['rejected'] <= MAX_REJECTED_SHARE * attempts:
+        return None
+    return (f'laser matches rejected on {counts["rejected"]} of {attempts} scans of {bag} '
+            f'({describe_counts(counts)}): its trajectory is the motion prior, not the laser')
 
 
 @dataclass
@@ -140,8 +180,9 @@ def run_trial(values: Mapping[str, Any], bags: Sequence[RecordedBag], objective:
     so far, and for a single bag after its first half (step 0): a pruner stops a
     hopeless trial there by raising, which passes through (the final score is the
     return value, so a finished trial is never pruned). Any other failure -
-    a refused value, an exception of the pipeline, a run that cannot be scored -
-    gives :data:`FAILED_TRIAL_SCORE` and says why in ``error``, never an exception.
+    a refused value, an exception of the pipeline, a run that cannot be scored, a
+    bag whose matches were mostly rejected (:func:`laser_failure`) - gives
+    :data:`FAILED_TRIAL_SCORE` and says why in ``error``, never an exception.
     """
     result = TrialResult(FAILED_TRIAL_SCORE)
     step = 0
@@ -165,6 +206,13 @@ def run_trial(values: Mapping[str, Any], bags: Sequence[RecordedBag], objective:
                 return result
             last = index == len(chunks) - 1
             if last:
+                counts = match_counts(pipeline.counters)
+                failure = laser_failure(counts, Path(bag.name).name)
+                if failure is not None:
+                    result.error, result.bag_scores = failure, []
+                    result.counts.append(counts)
+                    return result
+                result.counts.append(counts)
                 result.bag_scores.append(score)
                 if keep_trajectories:
                     result.trajectories.append(run.trajectory())

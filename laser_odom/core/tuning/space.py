@@ -19,6 +19,12 @@ the published covariance and
 must not be traded for accuracy. ``prior`` searches ``none`` and
 ``constant_velocity``, plus ``odom`` / ``imu`` when every bag has that topic.
 
+No trial crosses an ordered pair (:func:`~laser_odom.core.configuration.node.ordered_pairs`,
+such as ``nicp.normal_min_neighbours`` <= ``nicp.normal_neighbours``), which the node
+would refuse: a searched parameter below a fixed one has its range cut at that value,
+one above a fixed one likewise from below, and of two searched ones the lower is
+suggested after the higher, up to its value (:func:`suggest`).
+
 ``--space FILE`` (YAML, flat ``nicp.h`` or nested names) overrides ranges:
 ``name: [low, high]`` for a number, ``name: [choice, ...]`` for a choice; a parameter
 not in the default space is added. Every mistake is a :class:`SpaceError` of one line.
@@ -34,16 +40,17 @@ from typing import Any, Mapping, Protocol, Sequence
 
 import yaml
 
-from laser_odom.core.configuration.node import parameter_specs, ParameterSpec
+from laser_odom.core.configuration.node import ordered_pairs, parameter_specs, ParameterSpec
 from laser_odom.core.parameters import flatten, ParamInfo, yaml_word
 
 PIPELINE_PARAMETERS = (
-    'prior', 'max_correction_linear', 'max_correction_angular', 'min_inlier_ratio',
+    'prior', 'reference', 'max_correction_linear', 'max_correction_angular', 'min_inlier_ratio',
     'keyframe_distance', 'keyframe_angle', 'global_search', 'global_search_linear',
     'global_search_angular', 'global_search_resolution', 'global_search_candidates',
     'global_search_ambiguity')
-"""Pipeline settings searched with every matcher: the prior, the gates, keyframes and
-the global search."""
+"""Pipeline settings searched with every matcher: the prior, what each scan is matched
+against (the previous scan or the local map: on a simulated office bag the setting
+that mattered most, ATE 0.14 -> 0.01 m), the gates, keyframes and the global search."""
 
 NOT_SEARCHED = ('covariance_scale', 'covariance_shared_scan', 'covariance_bias',
                 'covariance_bias_correlation', 'covariance_baseline_falloff',
@@ -94,9 +101,14 @@ class Dimension:
     high: float = 0.0
     log: bool = False
     choices: tuple[Any, ...] = ()
+    at_most: tuple[str, ...] = ()
+    """Searched parameters this one must not exceed: suggested after them, up to their
+    values."""
 
-    def suggest(self, trial: Trial) -> Any:
-        """Return the trial's value of this parameter."""
+    def suggest(self, trial: Trial, ceiling: float = math.inf) -> Any:
+        """Return the trial's value of this parameter, at most ``ceiling``."""
+        if ceiling < self.high:
+            return replace(self, high=ceiling, at_most=()).suggest(trial)
         if self.kind == 'categorical':
             return trial.suggest_categorical(self.name, list(self.choices))
         if self.kind == 'int':
@@ -174,7 +186,35 @@ def matcher_space(matcher: str, start: Mapping[str, Any], priors: Sequence[str],
     if not set(dimensions['prior'].choices) <= set(priors):
         missing = sorted(set(dimensions['prior'].choices) - set(priors))
         raise SpaceError(f'prior {", ".join(missing)}: not every bag has the topic for it')
+    _keep_order(dimensions, {name: start.get(name, spec.default) for name, spec in specs.items()})
     return list(dimensions.values())
+
+
+def _keep_order(dimensions: dict[str, Dimension], fixed: Mapping[str, Any]) -> None:
+    """Cut the ranges so that no trial crosses an ordered pair; SpaceError if none can.
+
+    ``fixed`` holds the value every parameter has when it is not searched.
+    """
+    for low, high in ordered_pairs():
+        lower, upper = dimensions.get(low), dimensions.get(high)
+        if lower is None and upper is None:
+            continue
+        if lower is not None and upper is not None:
+            upper = replace(upper, low=max(upper.low, lower.low))
+            lower = replace(lower, at_most=lower.at_most + (high,))
+        elif lower is not None:
+            lower = replace(lower, high=min(lower.high, fixed[high]))
+        else:
+            upper = replace(upper, low=max(upper.low, fixed[low]))
+        for dimension in (lower, upper):
+            if dimension is None:
+                continue
+            if dimension.low > dimension.high:
+                raise SpaceError(f'--space {dimension.name}: no value left in its range with '
+                                 f'{low} <= {high} (the node refuses a minimum above its '
+                                 'maximum)')
+            dimensions[dimension.name] = replace(
+                dimension, log=dimension.log and dimension.low > 0)
 
 
 def _override(dimension: Dimension, info: ParamInfo, values: list[Any]) -> Dimension:
@@ -252,6 +292,16 @@ def start_values(dimensions: Sequence[Dimension]) -> dict[str, Any]:
 
 def suggest(dimensions: Sequence[Dimension], trial: Trial,
             default: bool = False) -> dict[str, Any]:
-    """Return one trial's values of every dimension (the start values for ``default``)."""
-    return {d.name: d.start if default and not d.contains(d.start) else d.suggest(trial)
-            for d in dimensions}
+    """Return one trial's values of every dimension (the start values for ``default``).
+
+    A dimension with ``at_most`` is suggested after those, up to their values (of two
+    searched parameters of an ordered pair, the lower one), so no trial crosses a pair.
+    """
+    values: dict[str, Any] = {}
+    for d in sorted(dimensions, key=lambda d: bool(d.at_most)):  # stable: space order
+        if default and not d.contains(d.start):
+            values[d.name] = d.start
+            continue
+        ceiling = min((values[h] for h in d.at_most), default=math.inf)
+        values[d.name] = d.suggest(trial, ceiling)
+    return {d.name: values[d.name] for d in dimensions}

@@ -76,6 +76,10 @@ class StudySummary:
     pruned: int
     failed: int
     wall: float
+    best_counts: list[dict[str, int]] = field(default_factory=list)
+    """The best trial's counts per bag (processed, matched, rejected...)."""
+    failure: str | None = None
+    """Why this run's first failed trial failed (``trial N: reason``), None if none did."""
 
 
 def study_name(job: TuneJob, matcher: str) -> str:
@@ -182,6 +186,7 @@ def _objective(job: TuneJob, matcher: str, bags: list[RecordedBag]) -> Callable[
         trial.set_user_attr('worker', f'{socket.gethostname()}:{os.getpid()}')  # who ran it
         result = run_trial(values, bags, job.objective, job.odom_weight, report)
         trial.set_user_attr('bag_scores', result.bag_scores)
+        trial.set_user_attr('counts', result.counts)
         if result.error is not None:
             trial.set_user_attr('error', result.error[:500])
         return result.score
@@ -193,6 +198,8 @@ def _progress(matcher: str, before: int, total: int) -> Callable[[Any, Any], Non
     def callback(study: Any, trial: Any) -> None:
         done = trial.state.name == 'COMPLETE'
         value = f'{trial.value:.5g}' if done else trial.state.name.lower()
+        if trial.user_attrs.get('error'):
+            value = f'failed ({trial.user_attrs["error"]})'
         try:
             best = f'{study.best_value:.5g}'
         except ValueError:
@@ -286,8 +293,11 @@ def summarize(job: TuneJob, storage: Any, existing: dict[str, int]) -> list[Stud
         trials = study.get_trials(deepcopy=False)
         done = [t for t in trials if t.state == TrialState.COMPLETE]
         default = next((t.value for t in done if t.user_attrs.get('default')), math.nan)
-        best = min(done, key=lambda t: t.value, default=None)
+        usable = [t for t in done if t.value < FAILED_TRIAL_SCORE]
+        best = min(usable, key=lambda t: t.value, default=None)  # never a failed trial
         new = [t for t in trials if t.number >= existing[matcher]]
+        failure = next((f'trial {t.number}: {t.user_attrs["error"]}' for t in new
+                        if t.user_attrs.get('error')), None)
         starts = [t.datetime_start for t in new if t.datetime_start is not None]
         ends = [t.datetime_complete for t in new if t.datetime_complete is not None]
         wall = (max(ends) - min(starts)).total_seconds() if starts and ends else 0.0
@@ -299,7 +309,8 @@ def summarize(job: TuneJob, storage: Any, existing: dict[str, int]) -> list[Stud
             matcher, default, math.nan if best is None else best.value, best_values,
             len(new), len(trials), sum(t.state == TrialState.PRUNED for t in new),
             sum(t.state == TrialState.FAIL or (t.state == TrialState.COMPLETE and (
-                t.value >= FAILED_TRIAL_SCORE)) for t in new), wall))
+                t.value >= FAILED_TRIAL_SCORE)) for t in new), wall,
+            [] if best is None else list(best.user_attrs.get('counts', [])), failure))
     return summaries
 
 

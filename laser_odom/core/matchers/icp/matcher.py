@@ -56,7 +56,8 @@ class IcpConfig(MatcherConfig):
     map_covariance_scale: float = retune(MatcherConfig, 'map_covariance_scale', 1.9)
     max_correspondence_distance: float = retune(MatcherConfig, 'max_correspondence_distance', 0.3)
     min_keep_fraction: float = param(
-        0.8, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0)
+        0.8, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0,
+        at_most='max_keep_fraction')
     max_keep_fraction: float = param(
         0.8, 'Trimming: keep at most this fraction of the gated pairs.', 0.1, 1.0)
     reference_spacing: float = param(

@@ -112,7 +112,7 @@ class ImlsConfig(MatcherConfig):
         4, 'At most this many nearest reference points enter the IMLS sums.', 1, 100)
     min_neighbours: int = param(
         2, 'A point with fewer reference points within the radius has no surface '
-        'value and is skipped.', 1, 100)
+        'value and is skipped.', 1, 100, at_most='max_neighbours')
     points_per_list: int = param(
         80, 'Informative points kept per observability list (x, y, +rotation, '
         '-rotation; IMLS-SLAM section III-B).', 1, 100000)
@@ -126,7 +126,7 @@ class ImlsConfig(MatcherConfig):
         0.6, 'Neighbourhood radius [m] of a normal estimate.', 0.01, 10.0)
     normal_min_neighbours: int = param(
         2, 'Points with fewer neighbours within the radius have no normal; these nearest '
-        'ones always count...', 2, 100)
+        'ones always count...', 2, 100, at_most='normal_neighbours')
     normal_extent: float = param(
         0.2, '...further ones only within this distance [m] (0 = off): on dense scans a '
         'fixed stretch of surface, on sparse ones the nearest few, not a span across '

@@ -63,7 +63,8 @@ class NicpConfig(MatcherConfig):
     normal_radius: float = param(
         1.0, 'Normal neighbourhoods are limited to this radius [m].', 0.01, 10.0)
     normal_min_neighbours: int = param(
-        3, 'A point with fewer neighbours than this has no normal.', 2, 100)
+        3, 'A point with fewer neighbours than this has no normal.', 2, 100,
+        at_most=('normal_neighbours', 'information_neighbours'))
     normal_extent: float = param(
         0.1, 'Neighbours beyond the normal_min_neighbours nearest count only within this '
         '[m] (dense scans: a fixed stretch of surface; sparse: the nearest few; 0 = off).',
@@ -78,7 +79,7 @@ class NicpConfig(MatcherConfig):
         'curvature is at most 0.5).', 0.0, 0.5)
     flat_curvature: float = param(
         0.1, 'Below this curvature the surface is flat and its normal is weighted by '
-        'normal_information.', 0.0, 0.5)
+        'normal_information.', 0.0, 0.5, at_most='max_curvature')
     point_sigma: float = param(
         0.01, 'Range noise [m]: regularises the inverse neighbourhood covariance of the '
         'point information.', 1e-5, 1.0)

@@ -68,7 +68,7 @@ class PlicpConfig(MatcherConfig):
         'discontinuity, not a segment.', 0.01, 10.0)
     min_keep_fraction: float = param(
         0.9, 'Trimming: always keep at least this fraction of the paired points.',
-        0.1, 1.0)
+        0.1, 1.0, at_most='max_keep_fraction')
     max_keep_fraction: float = param(
         0.95, 'Trimming: keep at most this fraction of the paired points.', 0.1, 1.0)
     trim_sigma: float = param(
