@@ -13,6 +13,9 @@ times their recorded rate (:mod:`laser_odom.tools.playback`, like ``ros2 bag pla
 it would on the robot. At the end the replay waits (``--timeout``) for the odometry of
 the last scan; the trajectory is the odometry that arrived (a skipped scan has none).
 
+``--clock``: ``/clock`` carries each scan's stamp before the scan, for a node on sim
+time (:mod:`laser_odom.tools.replay_clock`).
+
 The time from publishing a scan to receiving its odometry is the round-trip latency
 reported. The node's own figures are read from its ``/diagnostics`` by key (the
 difference between a report before the first scan and one after the last): scans
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 from functools import partial
+import itertools
 import sys
 import time
 from typing import Any, Callable, Iterator
@@ -52,6 +56,7 @@ from laser_odom.ros.graph import (
     OPTIONS_HINT, wait_for_node)
 from laser_odom.ros.priors import PRIOR_TOPICS
 from laser_odom.tools.playback import play, RecordedClock
+from laser_odom.tools.replay_clock import ReplayClock, TICK
 from laser_odom.tools.replay_report import ReplayError, ReplayRecord
 from laser_odom.tools.replay_target import live_target
 
@@ -101,6 +106,7 @@ class _Client:
         self.diagnostics_count = 0
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                       RELIABLE)
+        self.clock = ReplayClock(self.node) if getattr(args, 'clock', False) else None
         reset = self.node_name if self.node_name.startswith('/') else f'/{self.node_name}'
         self.reset_client = self.node.create_client(Trigger, f'{reset}/reset')
 
@@ -188,10 +194,27 @@ class _Client:
         self.spin_until(future.done, 5.0)
         return future.done() and future.result() is not None and future.result().success
 
+    def publish_clock(self, stamp_ns: int) -> None:
+        """Set the node's sim time to ``stamp_ns`` (with ``--clock``; else nothing)."""
+        if self.clock is not None:
+            self.clock.publish(stamp_ns)
+
     def diagnostics_after(self, count: int) -> dict[str, str] | None:
-        """Return the first diagnostics report newer than report number ``count``."""
-        self.spin_until(lambda: self.diagnostics_count > count, DIAGNOSTICS_WAIT)
-        return self.diagnostics if self.diagnostics_count > count else None
+        """Return the first diagnostics report newer than report number ``count``.
+
+        With ``--clock`` the clock runs on meanwhile: the report is paced by it.
+        """
+        def arrived() -> bool:
+            return self.diagnostics_count > count
+
+        if self.clock is None:
+            self.spin_until(arrived, DIAGNOSTICS_WAIT)
+        else:
+            tick, deadline = self.clock.running(), time.monotonic() + DIAGNOSTICS_WAIT
+            while not arrived() and time.monotonic() < deadline:
+                tick()
+                self.spin_until(arrived, TICK)
+        return self.diagnostics if arrived() else None
 
     def publish_priors(self, feed: PriorFeed, indices: range) -> None:
         """Publish the given prior samples on the node's prior topic."""
@@ -262,6 +285,7 @@ def _run_lock_step(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
     """Publish each scan and wait for its odometry before the next."""
     for scan in scans:
         record.scans_read += 1
+        client.publish_clock(scan.stamp_ns)
         client.publish_priors(feed, feed.advance(scan.stamp_ns))
         sent = time.perf_counter()
         client.scan_pub.publish(scan_to_msg(scan))
@@ -315,6 +339,7 @@ def _run_at_rate(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
     sent: dict[int, float] = {}
 
     def send(stamp_ns: int, msg: LaserScanMsg) -> None:
+        client.publish_clock(stamp_ns)
         sent[stamp_ns] = time.perf_counter()
         client.scan_pub.publish(msg)
         _progress(record, args)
@@ -378,6 +403,12 @@ def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
     try:
         client.wait_for_node()
         record.node_name, record.sent_topic = client.node_name, client.scan_pub.topic_name
+        if client.clock is not None:  # the clock starts a little before the first scan
+            scans = iter(scans)
+            first = next(scans, None)
+            if first is not None:
+                scans = itertools.chain([first], scans)
+                client.clock.start_before(first.stamp_ns)
         before = client.diagnostics_after(client.diagnostics_count)
         # A fresh node starts at the origin: a reset would only say so in its log.
         if before is None or _count(before, 'scans in') > 0:
