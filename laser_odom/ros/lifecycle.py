@@ -26,6 +26,8 @@ from __future__ import annotations
 import sys
 from typing import Any, Sequence
 
+from lifecycle_msgs.srv import ChangeState
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import LaserScan as LaserScanMsg
 
@@ -63,6 +65,29 @@ class LaserOdomLifecycleNode(LifecycleNodeMixin, plain.LaserOdomNode):
         self._own: dict[str, set] = {}
         plain.LaserOdomNode.__init__(self, params_files, **kwargs)
         LifecycleNodeMixin.__init__(self)
+        self._refuse_unknown_transitions()
+
+    def _refuse_unknown_transitions(self) -> None:
+        """Answer a transition the state does not have with ``success: false``.
+
+        rclpy raises from its ``~/change_state`` callback there (rclcpp answers
+        false), which would stop the executor: an ``activate`` sent too early must
+        not end the node.
+        """
+        service = self._service_change_state
+        change_state = service.callback
+
+        def guarded(request: ChangeState.Request,
+                    response: ChangeState.Response) -> ChangeState.Response:
+            try:
+                return change_state(request, response)
+            except _rclpy.RCLError as error:
+                self.get_logger().warning(
+                    f'transition {request.transition.label or request.transition.id} '
+                    f'refused: {str(error).split(",")[0]}')
+                response.success = False
+                return response
+        service.callback = guarded
 
     def _setup(self, params_files: Sequence[ParamsFile]) -> None:
         """Only declare the parameters: the rest is built on configure."""

@@ -150,7 +150,7 @@ class LaserOdomNode(Node):
             f'{self.get_fully_qualified_name().lstrip("/")}: odometry',
             settings.node.base_frame, time.monotonic())
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
-        self._clock = ClockWatch(self)
+        self._clock_watch = ClockWatch(self)
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
         """Set parameters (the parameter service's entry): refuse with a reason or convert.
@@ -216,7 +216,7 @@ class LaserOdomNode(Node):
         were overwritten there because the node was busy.
         """
         received = time.monotonic()
-        self._clock.scan_arrived()
+        self._clock_watch.scan_arrived()
         max_gap_ns = int(self.pipeline.config.motion.max_scan_gap * 1e9)
         waited = 0 < (info.get('received_timestamp') or 0) < self._busy_until_ns
         skipped = self._gaps.skipped(stamp_to_ns(msg.header.stamp), max_gap_ns,

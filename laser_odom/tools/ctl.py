@@ -30,6 +30,7 @@ from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from lifecycle_msgs.srv import GetState
 from rcl_interfaces.msg import Parameter as ParameterMsg
 import rclpy
 from rclpy.duration import Duration
@@ -52,6 +53,9 @@ ANSWER_TIMEOUT = 10.0
 
 STATUS_WAIT = 3.0
 """Seconds to wait for the node's next diagnostics report (it sends one a second)."""
+
+CLOCK_TOPIC = '/clock'
+GET_STATE = 'lifecycle_msgs/srv/GetState'
 
 LEVELS = {DiagnosticStatus.OK: 'OK', DiagnosticStatus.WARN: 'WARN',
           DiagnosticStatus.ERROR: 'ERROR', DiagnosticStatus.STALE: 'STALE'}
@@ -218,8 +222,46 @@ class Ctl:
 
         self.node.create_subscription(DiagnosticArray, '/diagnostics', keep, 10)
         if not self.spin_until(lambda: bool(found), STATUS_WAIT):
-            raise NoAnswer(f'no diagnostics from {self.name} within {STATUS_WAIT:.0f} s')
+            reason = self.silence()
+            raise NoAnswer(f'no diagnostics from {self.name} within {STATUS_WAIT:.0f} s'
+                           + (f': {reason}' if reason else ''))
         return found[-1]
+
+    def lifecycle_state(self) -> str | None:
+        """Return a managed node's state (``inactive``...), None for a plain node."""
+        service = f'{self.name}/get_state'
+        if not any(name == service and GET_STATE in types
+                   for name, types in self.node.get_service_names_and_types()):
+            return None
+        client = self.node.create_client(GetState, service)
+        if not client.wait_for_service(timeout_sec=ANSWER_TIMEOUT):
+            return None
+        return self._result(client.call_async(GetState.Request()),
+                            '~/get_state').current_state.label
+
+    def silence(self) -> str:
+        """Return why the node sends no diagnostics, when it can be told ('' if not).
+
+        A managed node publishes nothing unless it is active. A node on sim time
+        reports once a second of its ROS time, which stands still until ``/clock``
+        moves: with nothing publishing ``/clock`` the report never comes.
+        """
+        state = self.lifecycle_state()
+        if state is not None and state != 'active':
+            return (f'it is a managed node in state {state}, which publishes nothing; '
+                    f'activate it (ros2 lifecycle set {self.name} activate)')
+        if not self.values(['use_sim_time'])['use_sim_time']:
+            return ''
+        clocks = self.node.count_publishers(CLOCK_TOPIC)
+        if clocks == 0:
+            return ('it runs on sim time (use_sim_time is true) and nothing publishes '
+                    '/clock, so its ROS time stands still and its once-a-second report '
+                    'never comes; publish /clock (ros2 bag play --clock, laser_odom_replay '
+                    f'--live --clock) or run it with use_sim_time false ({PROG} set '
+                    'use_sim_time false)')
+        return (f'it runs on sim time (use_sim_time is true): it reports once a second of '
+                f'/clock time, and /clock ({clocks} publisher{"s" if clocks > 1 else ""}) '
+                'has not moved on by a second - paused?')
 
 
 def status_lines(status: DiagnosticStatus) -> list[str]:

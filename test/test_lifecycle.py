@@ -1,0 +1,172 @@
+"""``laser_odom_lifecycle_node``: the node as a managed node, over DDS (issue 39).
+
+A test peer drives the node through the standard ``lifecycle_msgs`` services, as ``ros2
+lifecycle set`` or a lifecycle manager would, and checks at each state what comes out:
+nothing while unconfigured or inactive, odometry that tracks the ground truth while
+active, the pose kept across deactivate/activate, a fresh start after cleanup, nothing
+left after shutdown.
+"""
+
+import os
+
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from node_harness import (
+    call, latest_status, NodeProcess, odometry_pose, OdometryClient, pose_error,
+    STARTUP_TIMEOUT, TEST_WORLD, unique_domain_id)
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+
+from laser_odom.core import se2
+from laser_odom.core.simulation import LaserModel, simulate
+from laser_odom.ros.conversions import scan_to_msg
+
+DOMAIN = unique_domain_id()
+NAMESPACE = f'/managed_{os.getpid()}'
+NODE = f'{NAMESPACE}/laser_odom'
+STATUS = f'{NODE[1:]}: odometry'
+QUIET = 3.0
+"""Seconds of listening in which a node that published would have been heard: three
+diagnostics periods, and many times a scan's round trip."""
+
+
+@pytest.fixture(scope='module')
+def dataset():
+    """Return 8 s of the test room (80 scans) with its ground truth."""
+    return simulate(TEST_WORLD, 8.0, LaserModel(), seed=11)
+
+
+class Lifecycle:
+    """The peer's side of the node's ``lifecycle_msgs`` services."""
+
+    def __init__(self, peer) -> None:
+        """Create the ``~/change_state`` and ``~/get_state`` clients."""
+        self.peer = peer
+        self.change_client = peer.node.create_client(ChangeState, f'{NODE}/change_state')
+        self.state_client = peer.node.create_client(GetState, f'{NODE}/get_state')
+
+    def state(self) -> str:
+        """Return the node's state label."""
+        assert self.state_client.wait_for_service(timeout_sec=STARTUP_TIMEOUT)
+        return call(self.peer, self.state_client.call_async(GetState.Request()),
+                    STARTUP_TIMEOUT).current_state.label
+
+    def change(self, transition: int) -> bool:
+        """Ask for a transition (by id, as ros2 lifecycle set does); True if it succeeded."""
+        request = ChangeState.Request(transition=Transition(id=transition))
+        # configure warms the kernels up: it may take as long as a start
+        timeout = STARTUP_TIMEOUT if transition == Transition.TRANSITION_CONFIGURE else 30.0
+        return call(self.peer, self.change_client.call_async(request), timeout).success
+
+
+def _nothing_comes(peer, client: OdometryClient, scans, process: NodeProcess) -> None:
+    """Send scans and listen: no odometry and no diagnostics may come back."""
+    answered, reports = len(client.order), len(peer.statuses(STATUS))
+    for scan in scans:
+        client.scan_pub.publish(scan_to_msg(scan))
+        peer.spin_for(0.05)
+    peer.spin_for(QUIET)
+    assert len(client.order) == answered and not client.pose.keys() - client.odom.keys()
+    assert len(peer.statuses(STATUS)) == reports
+    assert process.process.poll() is None, process.output()  # silent, not gone
+
+
+def test_the_managed_node_publishes_only_while_active(peer, dataset, monkeypatch, capsys):
+    from laser_odom.tools import ctl
+    scans, truth = dataset.scans, dataset.reference.poses
+    process = NodeProcess(DOMAIN, ['-r', f'__ns:={NAMESPACE}', '-p', 'publish_tf:=false'],
+                          module='laser_odom.ros.lifecycle')
+    lifecycle = Lifecycle(peer)
+    client = OdometryClient(peer, NAMESPACE)
+    try:
+        assert lifecycle.state() == 'unconfigured', process.output()
+        # Unconfigured: parameters only. A change is judged now and applied on configure.
+        parameters = AsyncParameterClient(peer.node, NODE)
+        assert parameters.wait_for_services(timeout_sec=15.0)
+        results = call(peer, parameters.set_parameters([
+            Parameter('matcher', value='plicp')])).results
+        assert results[0].successful, results[0].reason
+        refused = call(peer, parameters.set_parameters([
+            Parameter('min_inlier_ratio', value=1.5)])).results[0]
+        assert not refused.successful and 'above the maximum' in refused.reason
+        assert peer.node.count_publishers(f'{NAMESPACE}/odom') == 0
+        assert peer.node.count_subscribers(f'{NAMESPACE}/scan') == 0
+        assert not lifecycle.change(Transition.TRANSITION_ACTIVATE)  # not from unconfigured
+        assert lifecycle.state() == 'unconfigured'
+
+        # Configure: built with the values as they are now; inactive publishes nothing.
+        assert lifecycle.change(Transition.TRANSITION_CONFIGURE), process.output()
+        assert lifecycle.state() == 'inactive'
+        assert 'laser odometry: matcher plicp,' in process.output()
+        assert client.wait_ready(), process.output()
+        _nothing_comes(peer, client, scans[:5], process)
+        # laser_odom_ctl status says why it hears nothing.
+        monkeypatch.setenv('ROS_DOMAIN_ID', str(DOMAIN))
+        capsys.readouterr()
+        assert ctl.main(['--namespace', NAMESPACE, 'status']) == 1
+        err = capsys.readouterr().err
+        assert (f'no diagnostics from {NODE} within 3 s: it is a managed node in state '
+                'inactive, which publishes nothing; activate it') in err, err
+
+        # Active: odometry from the first scan after activate, tracking the ground truth.
+        assert lifecycle.change(Transition.TRANSITION_ACTIVATE)
+        assert lifecycle.state() == 'active'
+        for i in range(5, 35):
+            expected = se2.relative(truth[5], truth[i])
+            error = pose_error(odometry_pose(client.send(scans[i])), expected)
+            assert error[0] < 0.03 and error[1] < 0.01, (i, error)
+        values, _ = latest_status(peer, STATUS, lambda v, s: v['scans processed'] == '30')
+        assert values['scans received'] == '30' and values['matcher'] == 'plicp'
+        assert values['scans skipped'] == '0'
+
+        # Deactivate: nothing again; activate: the pose goes on from where it was.
+        assert lifecycle.change(Transition.TRANSITION_DEACTIVATE)
+        peer.spin_for(1.0)  # a report sent just before the answer may still be on its way
+        _nothing_comes(peer, client, scans[35:40], process)
+        assert lifecycle.change(Transition.TRANSITION_ACTIVATE)
+        for i in range(40, 50):
+            expected = se2.relative(truth[5], truth[i])
+            error = pose_error(odometry_pose(client.send(scans[i])), expected)
+            assert error[0] < 0.03 and error[1] < 0.01, (i, error)
+        latest_status(peer, STATUS, lambda v, s: v['scans processed'] == '40'
+                      and v['scans skipped'] == '0')
+
+        # Cleanup: the topics leave the graph; configure again starts a fresh pipeline.
+        assert lifecycle.change(Transition.TRANSITION_DEACTIVATE)
+        assert lifecycle.change(Transition.TRANSITION_CLEANUP)
+        assert lifecycle.state() == 'unconfigured'
+        assert peer.spin_until(
+            lambda: peer.node.count_publishers(f'{NAMESPACE}/odom') == 0
+            and peer.node.count_subscribers(f'{NAMESPACE}/scan') == 0, 15.0)
+        assert lifecycle.change(Transition.TRANSITION_CONFIGURE)
+        assert lifecycle.change(Transition.TRANSITION_ACTIVATE)
+        assert client.wait_ready()
+        first = client.send(scans[50])
+        assert np.allclose(odometry_pose(first), 0.0, atol=1e-12)
+        for i in range(51, 60):
+            expected = se2.relative(truth[50], truth[i])
+            assert pose_error(odometry_pose(client.send(scans[i])), expected)[0] < 0.03
+
+        # Shutdown from active: finalized, nothing left on the graph.
+        assert lifecycle.change(Transition.TRANSITION_ACTIVE_SHUTDOWN)
+        assert lifecycle.state() == 'finalized'
+        assert peer.spin_until(
+            lambda: peer.node.count_publishers(f'{NAMESPACE}/odom') == 0
+            and peer.node.count_subscribers(f'{NAMESPACE}/scan') == 0, 15.0)
+        assert process.interrupt() == 0
+    finally:
+        process.close()
+    output = process.output()
+    assert 'Traceback' not in output and '[ERROR]' not in output, output
+    assert output.count('laser odometry: matcher plicp,') == 2  # two configures
+    assert "parameters set (applied on configure): matcher='plicp'" in output
+
+
+def test_the_managed_node_help_names_the_lifecycle(capsys):
+    from laser_odom.ros.lifecycle import main
+    assert main(['laser_odom_lifecycle_node', '--help']) == 0
+    text = capsys.readouterr().out
+    assert text.startswith('laser_odom_lifecycle_node: the same node as laser_odom_node')
+    assert 'usage: laser_odom_lifecycle_node [-h] [--ros-args' in text
