@@ -21,7 +21,7 @@ reported. The node's own figures are read from its ``/diagnostics`` by key (the
 difference between a report before the first scan and one after the last): scans
 received and processed, failed and degenerate matches (``nav_msgs/Odometry`` carries
 no match status), scans not processed because the node was busy, scans dropped before
-reaching it, and its receipt-to-publish latency.
+reaching it, and its receipt-to-publish latency (:mod:`laser_odom.tools.replay_figures`).
 """
 
 from __future__ import annotations
@@ -50,13 +50,13 @@ from laser_odom.io.bag_reader import BagTruncatedError
 from laser_odom.ros.conversions import (
     covariance_3x3, ns_to_stamp, odometry_pose_from_msg, planar_pose_msg, scan_to_msg,
     stamp_to_ns)
-from laser_odom.ros.diagnostics import BUSY_KEY, DROPPED_KEY
 from laser_odom.ros.graph import (
     DISCOVERY_TIMEOUT, domain_text, join, NODE_NAME, NodeNotFound, OdometryNode,
     OPTIONS_HINT, wait_for_node)
 from laser_odom.ros.priors import PRIOR_TOPICS
 from laser_odom.tools.playback import play, RecordedClock
 from laser_odom.tools.replay_clock import ReplayClock, TICK
+from laser_odom.tools.replay_figures import count, read_report
 from laser_odom.tools.replay_report import ReplayError, ReplayRecord
 from laser_odom.tools.replay_target import live_target
 
@@ -239,31 +239,6 @@ class _Client:
             self.prior_pub.publish(msg)
 
 
-def _count(report: dict[str, str] | None, key: str) -> int:
-    """Return an integer diagnostics value (0 when absent)."""
-    try:
-        return int(float((report or {}).get(key, '0')))
-    except ValueError:
-        return 0
-
-
-LATENCY_KEYS = ('latency median [ms]', 'latency p95 [ms]')
-"""Diagnostics keys of the node's receipt-to-publish latency."""
-
-COUNT_KEYS = {'received': 'scans received', 'processed': 'scans processed',
-              'busy': BUSY_KEY, 'dropped': DROPPED_KEY, 'prior_missing': 'prior_missing'}
-"""Diagnostics keys of the counts reported for a live run (see ReplayRecord.node)."""
-
-
-def node_figures(before: dict[str, str], after: dict[str, str]) -> dict[str, Any]:
-    """Return a run's figures from the node's reports before and after it (by key)."""
-    figures: dict[str, Any] = {name: _count(after, key) - _count(before, key)
-                               for name, key in COUNT_KEYS.items()}
-    figures['latency_median_ms'], figures['latency_p95_ms'] = (
-        after.get(key, 'n/a') for key in LATENCY_KEYS)
-    return figures
-
-
 def _record_answer(record: ReplayRecord, msg: Odometry, seconds: float) -> None:
     """Record the node's odometry of one scan, ``seconds`` after the scan was sent."""
     stamp, pose = odometry_pose_from_msg(msg)
@@ -381,21 +356,6 @@ def _settle(client: _Client, sent: list[int], timeout: float) -> None:
             return
 
 
-def _read_report(client: _Client, before: dict[str, str] | None,
-                 record: ReplayRecord) -> None:
-    """Read the node's figures of the run from a report after its last answer."""
-    after = client.diagnostics_after(client.diagnostics_count)
-    if before is None or after is None:
-        return
-    if _count(after, 'scans processed') - _count(before, 'scans processed') < len(
-            record.stamps_ns):  # a report from before the last scan was processed
-        after = client.diagnostics_after(client.diagnostics_count) or after
-    for key, name in (('failed matches', 'rejected'),
-                      ('degenerate matches', 'degenerate')):
-        record.counters[name] = _count(after, key) - _count(before, key)
-    record.node = node_figures(before, after)
-
-
 def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
              args: argparse.Namespace) -> None:
     """Publish every scan to the node and record the odometry it answers with."""
@@ -411,7 +371,7 @@ def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
                 client.clock.start_before(first.stamp_ns)
         before = client.diagnostics_after(client.diagnostics_count)
         # A fresh node starts at the origin: a reset would only say so in its log.
-        if before is None or _count(before, 'scans in') > 0:
+        if before is None or count(before, 'scans in') > 0:
             if not client.reset_node() and not args.quiet:
                 print(f'--live: could not call {client.node_name}/reset; the node keeps its '
                       'pose')
@@ -421,8 +381,8 @@ def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
             else:
                 _run_at_rate(client, scans, feed, record, args)
         except BagTruncatedError:
-            _read_report(client, before, record)  # what was replayed still counts
+            read_report(client, before, record)  # what was replayed still counts
             raise
-        _read_report(client, before, record)
+        read_report(client, before, record)
     finally:
         client.close()
