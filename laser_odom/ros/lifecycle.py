@@ -177,11 +177,18 @@ class LaserOdomLifecycleNode(LifecycleNodeMixin, plain.LaserOdomNode):
 
 
 LIFECYCLE_USAGE = f"""\
-{PROG}: the same node as laser_odom_node, as a managed (lifecycle) node. It starts
+{PROG}: laser_odom_node as a managed (lifecycle) node. It starts
 unconfigured; drive it with the lifecycle_msgs services (ros2 lifecycle set /laser_odom
 configure|activate|deactivate|cleanup|shutdown, or a lifecycle manager). The parameters
 are applied on configure; nothing is published unless it is active.
 """
+
+
+def lifecycle_usage() -> str:
+    """Return the managed node's help: what is its own, then the node's usage."""
+    plain_usage = usage().replace(
+        '\n' + ' ' * len('usage: laser_odom_node '), '\n' + ' ' * len(f'usage: {PROG} '), 1)
+    return LIFECYCLE_USAGE + '\n' + plain_usage.replace('laser_odom_node', PROG)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -189,8 +196,7 @@ def main(args: list[str] | None = None) -> int:
     argv = sys.argv if args is None else args
     if wants_help(argv):
         with reader_may_leave(status=0):
-            print(LIFECYCLE_USAGE + '\n' + usage().replace('laser_odom_node', PROG, 1),
-                  flush=True)
+            print(lifecycle_usage(), flush=True)
         return 0
     return plain.main(args, LaserOdomLifecycleNode, PROG)
 
