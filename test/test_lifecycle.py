@@ -18,15 +18,17 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rosgraph_msgs.msg import Clock
 
 from laser_odom.core import se2
 from laser_odom.core.simulation import LaserModel, simulate
-from laser_odom.ros.conversions import scan_to_msg
+from laser_odom.ros.conversions import ns_to_stamp, scan_to_msg, stamp_to_ns
 
 DOMAIN = unique_domain_id()
 NAMESPACE = f'/managed_{os.getpid()}'
 NODE = f'{NAMESPACE}/laser_odom'
 STATUS = f'{NODE[1:]}: odometry'
+SECOND = 1_000_000_000
 QUIET = 3.0
 """Seconds of listening in which a node that published would have been heard: three
 diagnostics periods, and many times a scan's round trip."""
@@ -41,11 +43,11 @@ def dataset():
 class Lifecycle:
     """The peer's side of the node's ``lifecycle_msgs`` services."""
 
-    def __init__(self, peer) -> None:
-        """Create the ``~/change_state`` and ``~/get_state`` clients."""
+    def __init__(self, peer, node: str = NODE) -> None:
+        """Create the ``~/change_state`` and ``~/get_state`` clients of ``node``."""
         self.peer = peer
-        self.change_client = peer.node.create_client(ChangeState, f'{NODE}/change_state')
-        self.state_client = peer.node.create_client(GetState, f'{NODE}/get_state')
+        self.change_client = peer.node.create_client(ChangeState, f'{node}/change_state')
+        self.state_client = peer.node.create_client(GetState, f'{node}/get_state')
 
     def state(self) -> str:
         """Return the node's state label."""
@@ -171,3 +173,51 @@ def test_the_managed_node_help_names_the_lifecycle(capsys):
     assert text.startswith('laser_odom_lifecycle_node: laser_odom_node as a managed')
     assert 'usage: laser_odom_lifecycle_node [-h] [--ros-args' in text
     assert 'ros2 run laser_odom laser_odom_lifecycle_node --ros-args' in text
+
+
+def test_cleanup_keeps_the_sim_time_clock_of_a_managed_node(peer):
+    """The /clock reader of rclpy is the node's, not the configure's: cleanup leaves it.
+
+    ``use_sim_time`` set while configured makes rclpy subscribe to ``/clock`` then;
+    the cleanup that follows destroys what configure built, and that reader must stay.
+    """
+    namespace = f'{NAMESPACE}_sim'
+    process = NodeProcess(DOMAIN, ['-r', f'__ns:={namespace}', '-p', 'publish_tf:=false'],
+                          module='laser_odom.ros.lifecycle')
+    lifecycle = Lifecycle(peer, f'{namespace}/laser_odom')
+    clock = peer.node.create_publisher(Clock, '/clock', 10)
+    start = 1_900_000_000 * SECOND
+    ticks = [0]
+
+    def tick() -> None:
+        ticks[0] += 1
+        clock.publish(Clock(clock=ns_to_stamp(start + ticks[0] * SECOND // 10)))
+
+    def clock_readers() -> int:
+        return sum(topic == '/clock' for topic, _ in
+                   peer.node.get_subscriber_names_and_types_by_node('laser_odom', namespace))
+
+    try:
+        assert lifecycle.state() == 'unconfigured', process.output()
+        assert lifecycle.change(Transition.TRANSITION_CONFIGURE), process.output()
+        parameters = AsyncParameterClient(peer.node, f'{namespace}/laser_odom')
+        assert parameters.wait_for_services(timeout_sec=15.0)
+        assert call(peer, parameters.set_parameters([
+            Parameter('use_sim_time', value=True)])).results[0].successful
+        assert peer.spin_until(lambda: clock_readers() == 1, 15.0)
+        for transition in (Transition.TRANSITION_CLEANUP, Transition.TRANSITION_CONFIGURE,
+                           Transition.TRANSITION_ACTIVATE):
+            assert lifecycle.change(transition), process.output()
+        peer.spin_for(1.0)  # a reader destroyed by the cleanup would be gone by now
+        assert clock_readers() == 1
+        timer = peer.node.create_timer(0.1, tick)
+        # Its diagnostics come, paced and stamped by the clock it still reads.
+        latest_status(peer, f'{namespace[1:]}/laser_odom: odometry', lambda v, s: True, 30.0)
+        peer.node.destroy_timer(timer)
+        stamps = [stamp_to_ns(msg.header.stamp) for _, msg in peer.diagnostics
+                  if any(s.name.startswith(namespace[1:]) for s in msg.status)]
+        assert stamps and all(start < t <= start + ticks[0] * SECOND // 10 for t in stamps)
+        assert process.interrupt() == 0
+    finally:
+        process.close()
+    assert 'Traceback' not in process.output() and '[ERROR]' not in process.output()
