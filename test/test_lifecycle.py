@@ -97,6 +97,15 @@ def test_the_managed_node_publishes_only_while_active(peer, dataset, monkeypatch
         assert peer.node.count_subscribers(f'{NAMESPACE}/scan') == 0
         assert not lifecycle.change(Transition.TRANSITION_ACTIVATE)  # not from unconfigured
         assert lifecycle.state() == 'unconfigured'
+        # laser_odom_ctl lifecycle: ros2 lifecycle get|set for the pip set-up.
+        monkeypatch.setenv('ROS_DOMAIN_ID', str(DOMAIN))
+        capsys.readouterr()
+        assert ctl.main(['lifecycle']) == 0
+        assert capsys.readouterr().out == f'{NODE}: unconfigured\n'
+        assert ctl.main(['--namespace', NAMESPACE, 'lifecycle', 'activate']) == 2
+        assert capsys.readouterr().err.endswith(
+            f'error: {NODE} cannot activate from state unconfigured (it can: configure, '
+            'shutdown)\n')
 
         # Configure: built with the values as they are now; inactive publishes nothing.
         assert lifecycle.change(Transition.TRANSITION_CONFIGURE), process.output()
@@ -105,8 +114,6 @@ def test_the_managed_node_publishes_only_while_active(peer, dataset, monkeypatch
         assert client.wait_ready(), process.output()
         _nothing_comes(peer, client, scans[:5], process)
         # laser_odom_ctl status says why it hears nothing.
-        monkeypatch.setenv('ROS_DOMAIN_ID', str(DOMAIN))
-        capsys.readouterr()
         assert ctl.main(['--namespace', NAMESPACE, 'status']) == 1
         err = capsys.readouterr().err
         assert (f'no diagnostics from {NODE} within 3 s: it is a managed node in state '
@@ -127,7 +134,9 @@ def test_the_managed_node_publishes_only_while_active(peer, dataset, monkeypatch
         assert lifecycle.change(Transition.TRANSITION_DEACTIVATE)
         peer.spin_for(1.0)  # a report sent just before the answer may still be on its way
         _nothing_comes(peer, client, scans[35:40], process)
-        assert lifecycle.change(Transition.TRANSITION_ACTIVATE)
+        capsys.readouterr()
+        assert ctl.main(['--node-name', NODE, 'lifecycle', 'activate']) == 0
+        assert capsys.readouterr().out == f'{NODE}: activate -> active\n'
         for i in range(40, 50):
             expected = se2.relative(truth[5], truth[i])
             error = pose_error(odometry_pose(client.send(scans[i])), expected)
