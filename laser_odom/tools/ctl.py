@@ -281,7 +281,8 @@ class Ctl:
         state = self.lifecycle_state()
         if state is not None and state != 'active':
             return (f'it is a managed node in state {state}, which publishes nothing; '
-                    f'activate it (ros2 lifecycle set {self.name} activate)')
+                    f'activate it ({PROG} lifecycle activate, or ros2 lifecycle set '
+                    f'{self.name} activate)')
         if not self.values(['use_sim_time'])['use_sim_time']:
             return ''
         clocks = self.node.count_publishers(CLOCK_TOPIC)
