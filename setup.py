@@ -33,6 +33,7 @@ setup(
     entry_points={
         'console_scripts': [
             'laser_odom_node = laser_odom.ros.node:main',
+            'laser_odom_lifecycle_node = laser_odom.ros.lifecycle:main',
             'laser_odom_replay = laser_odom.tools.replay:main',
             'laser_odom_simulate = laser_odom.tools.simulate:main',
             'laser_odom_convert = laser_odom.tools.convert:main',

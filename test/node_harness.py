@@ -84,8 +84,9 @@ def wait_for(predicate: Callable[[], bool], timeout: float, step: float = 0.05) 
 class NodeProcess:
     """``python -m laser_odom.ros.node --ros-args ...`` with its output in a file."""
 
-    def __init__(self, domain_id: int, ros_args: list[str]) -> None:
-        """Start the node process."""
+    def __init__(self, domain_id: int, ros_args: list[str],
+                 module: str = 'laser_odom.ros.node') -> None:
+        """Start the node (``module``: ``laser_odom.ros.lifecycle`` for the managed one)."""
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), RCUTILS_COLORIZED_OUTPUT='0',
                    PYTHONUNBUFFERED='1')
         env['PYTHONPATH'] = os.pathsep.join(
@@ -93,7 +94,7 @@ class NodeProcess:
         self._log = tempfile.NamedTemporaryFile('w+', prefix='laser_odom_node_', suffix='.log')
         self._final: str | None = None
         self.process = subprocess.Popen(
-            [sys.executable, '-m', 'laser_odom.ros.node', '--ros-args', *ros_args],
+            [sys.executable, '-m', module, '--ros-args', *ros_args],
             cwd=ROOT, env=env, stdout=self._log, stderr=subprocess.STDOUT)
 
     def output(self) -> str:

@@ -65,7 +65,7 @@ def _entry_points() -> dict[str, str]:
 def _help(tool: str, module: str) -> str:
     """Return a tool's --help text (the node's usage for the node)."""
     import importlib
-    if tool == 'laser_odom_node':
+    if tool in ('laser_odom_node', 'laser_odom_lifecycle_node'):  # the same ROS arguments
         from laser_odom.ros.usage import usage
         return usage() + ' --ros-args --params-file -r -p'
     out = io.StringIO()

@@ -29,6 +29,8 @@ VERIFIED_KEYS = {
     'rclpy': (DISTRIBUTION, 'rclpy 7.1.11: ros-jazzy-rclpy'),
     'builtin_interfaces': (DISTRIBUTION, 'rcl_interfaces 2.0.4: ros-jazzy-builtin-interfaces'),
     'rcl_interfaces': (DISTRIBUTION, 'rcl_interfaces 2.0.4: ros-jazzy-rcl-interfaces'),
+    'lifecycle_msgs': (DISTRIBUTION, 'rcl_interfaces 2.0.4: ros-jazzy-lifecycle-msgs'),
+    'rosgraph_msgs': (DISTRIBUTION, 'rcl_interfaces 2.0.4: ros-jazzy-rosgraph-msgs'),
     'sensor_msgs': (DISTRIBUTION, 'common_interfaces 5.3.8: ros-jazzy-sensor-msgs'),
     'nav_msgs': (DISTRIBUTION, 'common_interfaces 5.3.8: ros-jazzy-nav-msgs'),
     'geometry_msgs': (DISTRIBUTION, 'common_interfaces 5.3.8: ros-jazzy-geometry-msgs'),
@@ -63,6 +65,7 @@ NOT_KEYS = {
 PROVIDERS = {
     'rclpy': 'rclpy', 'builtin_interfaces': 'builtin_interfaces',
     'rcl_interfaces': 'rcl_interfaces', 'sensor_msgs': 'sensor_msgs',
+    'lifecycle_msgs': 'lifecycle_msgs', 'rosgraph_msgs': 'rosgraph_msgs',
     'nav_msgs': 'nav_msgs', 'geometry_msgs': 'geometry_msgs', 'std_msgs': 'std_msgs',
     'std_srvs': 'std_srvs', 'diagnostic_msgs': 'diagnostic_msgs', 'tf2_ros': 'tf2_ros_py',
     'launch': 'launch', 'launch_ros': 'launch_ros', 'ament_index_python': 'ament_index_python',

@@ -124,7 +124,7 @@ def test_recorded_clock_and_play_keep_the_recorded_timing():
 def test_node_figures_are_read_by_the_keys_the_node_publishes():
     from laser_odom.core.configuration.node import NodeConfig
     from laser_odom.ros.diagnostics import DiagnosticsReporter, Snapshot
-    from laser_odom.tools.replay_live import node_figures
+    from laser_odom.tools.replay_figures import node_figures
 
     def report(counters: dict[str, int], received: int, when: float) -> dict[str, str]:
         snapshot = Snapshot(when, received, Counter(counters), np.array([0.02]), 'imls',

@@ -59,6 +59,7 @@ from laser_odom.ros.extrinsic import TfInterface
 from laser_odom.ros.live import LiveParameters, StartupError
 from laser_odom.ros.map_cloud import MapCloud
 from laser_odom.ros.priors import PriorInputs
+from laser_odom.ros.sim_time import ClockWatch
 from laser_odom.ros.usage import params_file_arguments, usage, wants_help
 
 SCAN_QOS = QoSProfile(
@@ -108,9 +109,23 @@ class LaserOdomNode(Node):
 
     def _setup(self, params_files: Sequence[ParamsFile]) -> None:
         """Create everything the node runs with."""
+        self._declare(params_files)
+        self._build()
+        self.params.start()
+        self._log_startup()
+
+    def _declare(self, params_files: Sequence[ParamsFile]) -> None:
+        """Judge the given parameter values and declare every parameter."""
         self._lock = threading.RLock()
         self.params = LiveParameters(self, self._on_settings, params_files,
                                      extrinsic.TF2_AVAILABLE)
+
+    def _build(self) -> None:
+        """Create the pipeline and the node's topics, services and timer from the parameters.
+
+        The plain node does it as it starts; the managed node
+        (:mod:`laser_odom.ros.lifecycle`) on each configure, with the values set by then.
+        """
         settings = self.params.settings
         self._tf = TfInterface(self, settings.node.base_frame, settings.node.use_tf_extrinsic)
         self.pipeline = OdometryPipeline(
@@ -138,8 +153,7 @@ class LaserOdomNode(Node):
             f'{self.get_fully_qualified_name().lstrip("/")}: odometry',
             settings.node.base_frame, time.monotonic())
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics)
-        self.params.start()
-        self._log_startup()
+        self._clock_watch = ClockWatch(self)
 
     def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
         """Set parameters (the parameter service's entry): refuse with a reason or convert.
@@ -206,6 +220,7 @@ class LaserOdomNode(Node):
         were overwritten there because the node was busy.
         """
         received = time.monotonic()
+        self._clock_watch.scan_arrived()
         max_gap_ns = int(self.pipeline.config.motion.max_scan_gap * 1e9)
         waited = 0 < (info.get('received_timestamp') or 0) < self._busy_until_ns
         skipped = self._gaps.skipped(stamp_to_ns(msg.header.stamp), max_gap_ns,
@@ -348,8 +363,13 @@ class LaserOdomNode(Node):
         self._diagnostics_pub.publish(msg)
 
 
-def main(args: list[str] | None = None) -> int:
-    """Run the node until Ctrl-C; return the exit code (2 for bad parameters)."""
+def main(args: list[str] | None = None, node_type: type[LaserOdomNode] | None = None,
+         prog: str = 'laser_odom_node') -> int:
+    """Run the node until Ctrl-C; return the exit code (2 for bad parameters).
+
+    ``node_type`` and ``prog`` serve the managed node (:mod:`laser_odom.ros.lifecycle`),
+    which starts, fails and stops as this one does.
+    """
     argv = sys.argv if args is None else args
     if wants_help(argv):
         with reader_may_leave(status=0):  # `--help | head`: the reader left; say no more
@@ -360,24 +380,24 @@ def main(args: list[str] | None = None) -> int:
         # before rcl parses them, so a malformed file gets the same one-line error.
         params_files = [parse_params_file(path) for path in params_file_arguments(argv)]
     except ParamsFileError as error:
-        print(f'laser_odom_node: error: {error}', file=sys.stderr)
+        print(f'{prog}: error: {error}', file=sys.stderr)
         return 2
     try:
         rclpy.init(args=args)
     except Exception as error:  # malformed --ros-args or an unreadable params file
         message = str(error).strip().splitlines()
-        print(f'laser_odom_node: error: {message[0] if message else error!r}', file=sys.stderr)
+        print(f'{prog}: error: {message[0] if message else error!r}', file=sys.stderr)
         return 2
     node = None
     code = 0
     try:
         # Built before the node so that a Ctrl-C at any later moment finds it complete.
         executor = SingleThreadedExecutor()
-        node = LaserOdomNode(params_files)
+        node = (node_type or LaserOdomNode)(params_files)
         executor.add_node(node)
         executor.spin()
     except StartupError as error:
-        print(f'laser_odom_node: error: {error}', file=sys.stderr)
+        print(f'{prog}: error: {error}', file=sys.stderr)
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

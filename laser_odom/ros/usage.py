@@ -41,7 +41,9 @@ namespace, or give --namespace NS / --node-name NAME):
   laser_odom_ctl set NAME VALUE       ros2 param set /laser_odom NAME VALUE
   laser_odom_ctl reset                ros2 service call /laser_odom/reset std_srvs/srv/Trigger
   laser_odom_ctl reset X Y YAW        ros2 topic pub --once /laser_odom/set_pose ...
-  laser_odom_ctl status               ros2 topic echo /diagnostics"""
+  laser_odom_ctl status               ros2 topic echo /diagnostics
+  laser_odom_ctl lifecycle [T]        ros2 lifecycle get|set /laser_odom [T] (the managed
+                                      laser_odom_lifecycle_node; T: configure, activate...)"""
 
 
 def wants_help(argv: list[str]) -> bool:

@@ -10,6 +10,7 @@ registries), so the node's parameters, its ``~/reset`` and ``~/set_pose`` and it
     laser_odom_ctl reset                  # ros2 service call /laser_odom/reset ...
     laser_odom_ctl reset 2.0 -1.0 0.5     # ros2 topic pub --once /laser_odom/set_pose ...
     laser_odom_ctl status                 # ros2 topic echo /diagnostics (the node's status)
+    laser_odom_ctl lifecycle [configure]  # ros2 lifecycle get|set /laser_odom (managed node)
 
 The node is found on the graph as ``laser_odom_replay --live`` finds it
 (:mod:`laser_odom.ros.graph`): the one ``laser_odom`` node, in any namespace, or the
@@ -31,6 +32,7 @@ from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from lifecycle_msgs.srv import GetState
 from rcl_interfaces.msg import Parameter as ParameterMsg
 import rclpy
 from rclpy.duration import Duration
@@ -45,6 +47,7 @@ from laser_odom.io.text_output import reader_may_leave
 from laser_odom.ros.conversions import planar_pose_msg
 from laser_odom.ros.default_params import yaml_value
 from laser_odom.ros.graph import NodeNotFound, Target, wait_for_node
+from laser_odom.tools.ctl_lifecycle import LifecycleClient, TRANSITIONS, wait_for_managed
 
 PROG = 'laser_odom_ctl'
 
@@ -53,6 +56,9 @@ ANSWER_TIMEOUT = 10.0
 
 STATUS_WAIT = 3.0
 """Seconds to wait for the node's next diagnostics report (it sends one a second)."""
+
+CLOCK_TOPIC = '/clock'
+GET_STATE = 'lifecycle_msgs/srv/GetState'
 
 LEVELS = {DiagnosticStatus.OK: 'OK', DiagnosticStatus.WARN: 'WARN',
           DiagnosticStatus.ERROR: 'ERROR', DiagnosticStatus.STALE: 'STALE'}
@@ -95,6 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
     commands.add_parser('status', help="print the node's diagnostics (once a second on "
                         '/diagnostics): matcher, reference (scan or local_map), prior, '
                         'counters, timing')
+    lifecycle = commands.add_parser(
+        'lifecycle', help="a managed node's (laser_odom_lifecycle_node) state, or a "
+        'transition to it, as ros2 lifecycle get|set')
+    lifecycle.add_argument('transition', nargs='?', choices=TRANSITIONS)
     return p
 
 
@@ -123,6 +133,13 @@ class Ctl:
         namespace = args.namespace if args.namespace is not None else (
             own if own != '/' else None)
         timeout = {} if args.timeout is None else {'discovery_timeout': args.timeout}
+        if args.command == 'lifecycle':  # found by its services: unconfigured, it has no topics
+            try:
+                self.name = wait_for_managed(self.node, Target(namespace, args.node_name),
+                                             self.spin, *timeout.values())
+            except NodeNotFound as error:
+                raise CtlError(str(error)) from None
+            return
         try:
             self.target = wait_for_node(self.node, Target(namespace, args.node_name),
                                         self.spin, **timeout,
@@ -151,11 +168,30 @@ class Ctl:
             self.executor.spin_once(timeout_sec=0.05)
         return True
 
-    def _result(self, future: Any, what: str) -> Any:
+    def _result(self, future: Any, what: str, timeout: float = ANSWER_TIMEOUT) -> Any:
         """Wait for a service future; NoAnswer when it does not complete."""
-        if not self.spin_until(future.done, ANSWER_TIMEOUT) or future.result() is None:
-            raise NoAnswer(f'{self.name} did not answer {what} within {ANSWER_TIMEOUT:.0f} s')
+        if not self.spin_until(future.done, timeout) or future.result() is None:
+            raise NoAnswer(f'{self.name} did not answer {what} within {timeout:.0f} s')
         return future.result()
+
+    def lifecycle(self, transition: str | None) -> str:
+        """Return a managed node's state, or make a transition and return the line to say.
+
+        CtlError (exit 2) when the state has no such transition or the node's
+        callback refused it (then its own log says why).
+        """
+        client = LifecycleClient(self.node, self.name, self._result, ANSWER_TIMEOUT)
+        if not client.ready:
+            raise NoAnswer(f'{self.name} offers no lifecycle services')
+        if transition is None:
+            return f'{self.name}: {client.state()}'
+        done, state, possible = client.change(transition)
+        if done:
+            return f'{self.name}: {transition} -> {state}'
+        if transition not in possible:
+            raise CtlError(f'{self.name} cannot {transition} from state {state} (it can: '
+                           f'{", ".join(sorted(set(possible))) or "nothing"})')
+        raise CtlError(f'{self.name}: {transition} failed, state {state} (its log says why)')
 
     def _parameters(self) -> AsyncParameterClient:
         """Return a parameter client of the node, its services ready."""
@@ -217,8 +253,47 @@ class Ctl:
 
         self.node.create_subscription(DiagnosticArray, '/diagnostics', keep, 10)
         if not self.spin_until(lambda: bool(found), STATUS_WAIT):
-            raise NoAnswer(f'no diagnostics from {self.name} within {STATUS_WAIT:.0f} s')
+            reason = self.silence()
+            raise NoAnswer(f'no diagnostics from {self.name} within {STATUS_WAIT:.0f} s'
+                           + (f': {reason}' if reason else ''))
         return found[-1]
+
+    def lifecycle_state(self) -> str | None:
+        """Return a managed node's state (``inactive``...), None for a plain node."""
+        service = f'{self.name}/get_state'
+        if not any(name == service and GET_STATE in types
+                   for name, types in self.node.get_service_names_and_types()):
+            return None
+        client = self.node.create_client(GetState, service)
+        if not client.wait_for_service(timeout_sec=ANSWER_TIMEOUT):
+            return None
+        return self._result(client.call_async(GetState.Request()),
+                            '~/get_state').current_state.label
+
+    def silence(self) -> str:
+        """Return why the node sends no diagnostics, when it can be told ('' if not).
+
+        A managed node publishes nothing unless it is active. A node on sim time
+        reports once a second of its ROS time, which stands still until ``/clock``
+        moves: with nothing publishing ``/clock`` the report never comes.
+        """
+        state = self.lifecycle_state()
+        if state is not None and state != 'active':
+            return (f'it is a managed node in state {state}, which publishes nothing; '
+                    f'activate it ({PROG} lifecycle activate, or ros2 lifecycle set '
+                    f'{self.name} activate)')
+        if not self.values(['use_sim_time'])['use_sim_time']:
+            return ''
+        clocks = self.node.count_publishers(CLOCK_TOPIC)
+        if clocks == 0:
+            return ('it runs on sim time (use_sim_time is true) and nothing publishes '
+                    '/clock, so its ROS time stands still and its once-a-second report '
+                    'never comes; publish /clock (ros2 bag play --clock, laser_odom_replay '
+                    f'--live --clock) or run it with use_sim_time false ({PROG} set '
+                    'use_sim_time false)')
+        return (f'it runs on sim time (use_sim_time is true): it reports once a second of '
+                f'/clock time, and /clock ({clocks} publisher{"s" if clocks > 1 else ""}) '
+                'has not moved on by a second - paused?')
 
 
 def no_parameter(node: str, name: str, known: list[str]) -> str:
@@ -273,6 +348,8 @@ def run(args: argparse.Namespace, ros_args: list[str]) -> int:
                   f'y={args.pose[1]:g} yaw={args.pose[2]:g}')
         elif args.command == 'reset':
             print(f'{ctl.name}: {ctl.reset()}')
+        elif args.command == 'lifecycle':
+            print(ctl.lifecycle(args.transition))
         else:
             print('\n'.join(status_lines(ctl.status())))
     finally:

@@ -123,6 +123,10 @@ def build_parser() -> argparse.ArgumentParser:
                    'recorded rate, by their stamps, without waiting for the odometry '
                    '(like ros2 bag play --rate); reports the scans the node skipped. '
                    'Default: lock-step, each scan waits for its odometry')
+    p.add_argument('--clock', action='store_true',
+                   help="--live: publish /clock (rosgraph_msgs/Clock) with each scan's stamp "
+                   'before the scan, for a node run with use_sim_time:=true (like ros2 bag '
+                   'play --clock)')
     p.add_argument('--quiet', action='store_true',
                    help='no progress lines and no warnings (errors still show)')
     return p
@@ -314,6 +318,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.rate is not None and not args.live:
         parser.error('--rate needs --live (it plays the scans to a running node)')
+    if args.clock and not args.live:
+        parser.error('--clock needs --live (it sets the sim time of a running node)')
     try:
         with reader_may_leave(), warnings_silenced(args.quiet):
             return replay(args)

@@ -13,18 +13,22 @@ times their recorded rate (:mod:`laser_odom.tools.playback`, like ``ros2 bag pla
 it would on the robot. At the end the replay waits (``--timeout``) for the odometry of
 the last scan; the trajectory is the odometry that arrived (a skipped scan has none).
 
+``--clock``: ``/clock`` carries each scan's stamp before the scan, for a node on sim
+time (:mod:`laser_odom.tools.replay_clock`).
+
 The time from publishing a scan to receiving its odometry is the round-trip latency
 reported. The node's own figures are read from its ``/diagnostics`` by key (the
 difference between a report before the first scan and one after the last): scans
 received and processed, failed and degenerate matches (``nav_msgs/Odometry`` carries
 no match status), scans not processed because the node was busy, scans dropped before
-reaching it, and its receipt-to-publish latency.
+reaching it, and its receipt-to-publish latency (:mod:`laser_odom.tools.replay_figures`).
 """
 
 from __future__ import annotations
 
 import argparse
 from functools import partial
+import itertools
 import sys
 import time
 from typing import Any, Callable, Iterator
@@ -46,12 +50,13 @@ from laser_odom.io.bag_reader import BagTruncatedError
 from laser_odom.ros.conversions import (
     covariance_3x3, ns_to_stamp, odometry_pose_from_msg, planar_pose_msg, scan_to_msg,
     stamp_to_ns)
-from laser_odom.ros.diagnostics import BUSY_KEY, DROPPED_KEY
 from laser_odom.ros.graph import (
     DISCOVERY_TIMEOUT, domain_text, join, NODE_NAME, NodeNotFound, OdometryNode,
     OPTIONS_HINT, wait_for_node)
 from laser_odom.ros.priors import PRIOR_TOPICS
 from laser_odom.tools.playback import play, RecordedClock
+from laser_odom.tools.replay_clock import ReplayClock, TICK
+from laser_odom.tools.replay_figures import count, read_report
 from laser_odom.tools.replay_report import ReplayError, ReplayRecord
 from laser_odom.tools.replay_target import answer_timeout, live_target
 
@@ -104,6 +109,7 @@ class _Client:
         self.diagnostics_count = 0
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                       RELIABLE)
+        self.clock = ReplayClock(self.node) if getattr(args, 'clock', False) else None
         reset = self.node_name if self.node_name.startswith('/') else f'/{self.node_name}'
         self.reset_client = self.node.create_client(Trigger, f'{reset}/reset')
 
@@ -196,10 +202,27 @@ class _Client:
         self.spin_until(future.done, 5.0)
         return future.done() and future.result() is not None and future.result().success
 
+    def publish_clock(self, stamp_ns: int) -> None:
+        """Set the node's sim time to ``stamp_ns`` (with ``--clock``; else nothing)."""
+        if self.clock is not None:
+            self.clock.publish(stamp_ns)
+
     def diagnostics_after(self, count: int) -> dict[str, str] | None:
-        """Return the first diagnostics report newer than report number ``count``."""
-        self.spin_until(lambda: self.diagnostics_count > count, DIAGNOSTICS_WAIT)
-        return self.diagnostics if self.diagnostics_count > count else None
+        """Return the first diagnostics report newer than report number ``count``.
+
+        With ``--clock`` the clock runs on meanwhile: the report is paced by it.
+        """
+        def arrived() -> bool:
+            return self.diagnostics_count > count
+
+        if self.clock is None:
+            self.spin_until(arrived, DIAGNOSTICS_WAIT)
+        else:
+            tick, deadline = self.clock.running(), time.monotonic() + DIAGNOSTICS_WAIT
+            while not arrived() and time.monotonic() < deadline:
+                tick()
+                self.spin_until(arrived, TICK)
+        return self.diagnostics if arrived() else None
 
     def publish_priors(self, feed: PriorFeed, indices: range) -> None:
         """Publish the given prior samples on the node's prior topic."""
@@ -224,31 +247,6 @@ class _Client:
             self.prior_pub.publish(msg)
 
 
-def _count(report: dict[str, str] | None, key: str) -> int:
-    """Return an integer diagnostics value (0 when absent)."""
-    try:
-        return int(float((report or {}).get(key, '0')))
-    except ValueError:
-        return 0
-
-
-LATENCY_KEYS = ('latency median [ms]', 'latency p95 [ms]')
-"""Diagnostics keys of the node's receipt-to-publish latency."""
-
-COUNT_KEYS = {'received': 'scans received', 'processed': 'scans processed',
-              'busy': BUSY_KEY, 'dropped': DROPPED_KEY, 'prior_missing': 'prior_missing'}
-"""Diagnostics keys of the counts reported for a live run (see ReplayRecord.node)."""
-
-
-def node_figures(before: dict[str, str], after: dict[str, str]) -> dict[str, Any]:
-    """Return a run's figures from the node's reports before and after it (by key)."""
-    figures: dict[str, Any] = {name: _count(after, key) - _count(before, key)
-                               for name, key in COUNT_KEYS.items()}
-    figures['latency_median_ms'], figures['latency_p95_ms'] = (
-        after.get(key, 'n/a') for key in LATENCY_KEYS)
-    return figures
-
-
 def _record_answer(record: ReplayRecord, msg: Odometry, seconds: float) -> None:
     """Record the node's odometry of one scan, ``seconds`` after the scan was sent."""
     stamp, pose = odometry_pose_from_msg(msg)
@@ -270,6 +268,7 @@ def _run_lock_step(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
     """Publish each scan and wait for its odometry before the next."""
     for scan in scans:
         record.scans_read += 1
+        client.publish_clock(scan.stamp_ns)
         client.publish_priors(feed, feed.advance(scan.stamp_ns))
         sent = time.perf_counter()
         client.scan_pub.publish(scan_to_msg(scan))
@@ -323,6 +322,7 @@ def _run_at_rate(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
     sent: dict[int, float] = {}
 
     def send(stamp_ns: int, msg: LaserScanMsg) -> None:
+        client.publish_clock(stamp_ns)
         sent[stamp_ns] = time.perf_counter()
         client.scan_pub.publish(msg)
         _progress(record, args)
@@ -364,21 +364,6 @@ def _settle(client: _Client, sent: list[int], timeout: float) -> None:
             return
 
 
-def _read_report(client: _Client, before: dict[str, str] | None,
-                 record: ReplayRecord) -> None:
-    """Read the node's figures of the run from a report after its last answer."""
-    after = client.diagnostics_after(client.diagnostics_count)
-    if before is None or after is None:
-        return
-    if _count(after, 'scans processed') - _count(before, 'scans processed') < len(
-            record.stamps_ns):  # a report from before the last scan was processed
-        after = client.diagnostics_after(client.diagnostics_count) or after
-    for key, name in (('failed matches', 'rejected'),
-                      ('degenerate matches', 'degenerate')):
-        record.counters[name] = _count(after, key) - _count(before, key)
-    record.node = node_figures(before, after)
-
-
 def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
              args: argparse.Namespace) -> None:
     """Publish every scan to the node and record the odometry it answers with."""
@@ -386,9 +371,15 @@ def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
     try:
         client.wait_for_node()
         record.node_name, record.sent_topic = client.node_name, client.scan_pub.topic_name
+        if client.clock is not None:  # the clock starts a little before the first scan
+            scans = iter(scans)
+            first = next(scans, None)
+            if first is not None:
+                scans = itertools.chain([first], scans)
+                client.clock.start_before(first.stamp_ns)
         before = client.diagnostics_after(client.diagnostics_count)
         # A fresh node starts at the origin: a reset would only say so in its log.
-        if before is None or _count(before, 'scans in') > 0:
+        if before is None or count(before, 'scans in') > 0:
             if not client.reset_node() and not args.quiet:
                 print(f'--live: could not call {client.node_name}/reset; the node keeps its '
                       'pose')
@@ -398,8 +389,8 @@ def run_live(scans: Iterator[LaserScan], feed: PriorFeed, record: ReplayRecord,
             else:
                 _run_at_rate(client, scans, feed, record, args)
         except BagTruncatedError:
-            _read_report(client, before, record)  # what was replayed still counts
+            read_report(client, before, record)  # what was replayed still counts
             raise
-        _read_report(client, before, record)
+        read_report(client, before, record)
     finally:
         client.close()
