@@ -13,7 +13,7 @@ Every world is laid out so that its robot path starts at the origin heading alon
 - ``campus``: an outdoor campus of 150 x 100 m, six buildings 25-37 m long (recessed
   entrances with canopy columns, a courtyard) 20-30 m apart, trees in clusters and an
   avenue, and open ground around: in the open directions a beam returns nothing. A
-  212 m loop of paths between the buildings.
+  220 m loop of paths between the buildings.
 - ``hall``: a 60 x 30 m convention hall, 0.5 m pillars on a 10 m grid and booths with
   open sides; a 120 m loop whose long middle aisle is 15 m or more from every wall,
   beyond the range of a 12 m lidar.
@@ -246,7 +246,7 @@ def _tree_clusters(centres: list[tuple[float, float, float, int]], avoid: np.nda
 
 
 def _campus() -> World:
-    """Build a 150 x 100 m campus: six buildings, trees, open ground, a 212 m path loop.
+    """Build a 150 x 100 m campus: six buildings, trees, open ground, a 220 m path loop.
 
     Drawn with the campus in [0, 150] x [0, 100] m; the loop runs counter-clockwise
     along paths 7-13 m from the facades, with two chicanes round tree clusters, and is
