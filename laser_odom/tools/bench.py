@@ -4,7 +4,8 @@ Rows are dataset x matcher x prior x deskew setting x reference (``scan`` or
 ``local_map``). Datasets are the simulated ones
 (generated here) plus every real dataset found under ``--data-dir``; ``--grid deskew``
 adds (or, without ``--datasets``, runs only) the simulated rotating lidars driven
-``gentle``, ``spin``, ``aggressive`` and turning, which are left out by default.
+``gentle``, ``spin``, ``aggressive`` and turning, and ``--grid worlds`` the outdoor
+campus and the convention hall driven slow and fast at 5 Hz; both are left out by default.
 Timing is taken inside this process around the whole per-scan work of the pipeline
 (conversion, tree build, matching), after a warm-up.
 
@@ -114,7 +115,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              'ld06, ust10lx, tim571) in the office driven gentle, spin and '
                              'aggressive, sim-SENSOR-MOTION (60 s; ust10lx 20 s), and '
                              'sim-lds01-turning, sim-rplidar_a1-turning (0.3 m/s, '
-                             '1.5 rad/s, 20 s)')
+                             '1.5 rad/s, 20 s). The group worlds is the campus (tim571 '
+                             'figures) and the hall (rplidar_a1) at 5 Hz, slow (gentle) and '
+                             'fast (1 m/s, 1.5 rad/s), seeds 1-3, sim-WORLD-SPEED-sSEED '
+                             '(120 s; the slow campus 240 s)')
     parser.add_argument('--priors', default=','.join(DEFAULT_BENCH_PRIORS),
                         help='comma-separated priors: none, constant_velocity, odom '
                              '(default: all three)')

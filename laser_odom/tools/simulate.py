@@ -53,11 +53,15 @@ def build_parser() -> argparse.ArgumentParser:
         'with /scan, /ground_truth and /odom, plus the ground truth as a TUM file.')
     p.add_argument('out', metavar='OUT', type=Path, help='bag directory to create')
     p.add_argument('--world', default=DEFAULT_WORLD, choices=world_names(),
-                   help=f'world to drive (default: {DEFAULT_WORLD})')
+                   help='world to drive: office, corridor, cluttered, featureless_corridor, '
+                   'campus (outdoor, 150 x 100 m, buildings tens of metres apart, trees, '
+                   'open ground; a 220 m loop) or hall (a 60 x 30 m convention hall, '
+                   f'sparse pillars and booths; a 120 m loop) (default: {DEFAULT_WORLD})')
     p.add_argument('--motion', default=DEFAULT_MOTION, choices=MOTIONS,
                    help='how the robot drives: gentle (0.45 m/s), spin (stops to turn in '
-                   'place at up to 3 rad/s) or aggressive (up to 1.5 m/s, fast '
-                   f'accelerations) (default: {DEFAULT_MOTION})')
+                   'place at up to 3 rad/s), aggressive (up to 1.5 m/s, fast '
+                   'accelerations) or fast (1 m/s, corners at up to 1.5 rad/s; e.g. '
+                   f'--sensor rplidar_a1 --rate 5) (default: {DEFAULT_MOTION})')
     p.add_argument('--drop', type=number_in(float, 0.0, 0.99), default=0.0, metavar='P',
                    help='probability that a scan is dropped (never the first; its ground '
                    'truth goes too) (default: 0)')

@@ -26,7 +26,7 @@ from laser_odom.core.motion.priors import PriorFeed
 from laser_odom.core.parameters import param_info
 from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.pipeline.runner import run_pipeline, RunResult
-from laser_odom.core.simulation import ConstantTwist, LaserModel, simulate
+from laser_odom.core.simulation import ConstantTwist, LaserModel, sensor_model, simulate
 from laser_odom.core.trajectory import Dataset, Trajectory
 from laser_odom.core.uncertainty.pose_uncertainty import StepErrorModel
 
@@ -109,11 +109,18 @@ class SensorSpec:
     duration: float = 60.0
     world: str = 'office'
     seed: int = 1
+    rate: float | None = None
+    """Scan rate [Hz] in place of the preset's (a lidar turned slower or faster)."""
 
     def generate(self, name: str) -> Dataset:
         """Simulate the dataset (deterministic for the spec)."""
-        dataset = simulate(self.world, duration=self.duration, sensor=self.sensor,
-                           seed=self.seed, motion=self.motion)
+        if self.rate is None:
+            dataset = simulate(self.world, duration=self.duration, sensor=self.sensor,
+                               seed=self.seed, motion=self.motion)
+        else:
+            dataset = simulate(self.world, duration=self.duration,
+                               laser=sensor_model(self.sensor, rate=self.rate),
+                               seed=self.seed, motion=self.motion)
         dataset.name = name
         return dataset
 
@@ -150,10 +157,44 @@ def deskew_grid() -> dict[str, SensorSpec]:
     return grid
 
 
-GRIDS: dict[str, dict[str, SensorSpec]] = {'deskew': deskew_grid()}
+WORLD_SENSORS = {'campus': 'tim571', 'hall': 'rplidar_a1'}
+"""The lidar of each world of the ``worlds`` grid: outdoors a 25 m, 270 deg scanner (the
+SICK TiM571's figures), in the hall a 12 m one (the RPLIDAR A1) whose range the walls
+are beyond in the middle aisle."""
+
+WORLD_RATE = 5.0
+"""Scan rate [Hz] of the ``worlds`` grid: at the ``fast`` profile's 1 m/s and 1.5 rad/s,
+0.2 m and up to 17 deg between scans."""
+
+WORLD_SPEEDS = {'slow': 'gentle', 'fast': 'fast'}
+"""The ``worlds`` grid's speeds and the motion profiles that drive them."""
+
+WORLD_DURATIONS = {('campus', 'slow'): 240.0}
+"""Seconds of a ``worlds`` dataset where not :data:`WORLD_DURATION`: the slow campus run
+needs 240 s for its 104 m, two segments of the 50 m drift."""
+
+WORLD_DURATION = 120.0
+"""Seconds of a ``worlds`` dataset: 600 scans, 52 m slow and 119 m fast."""
+
+WORLD_SEEDS = (1, 2, 3)
+"""Seeds of the ``worlds`` grid (range noise and wheel odometry; the path is the same)."""
+
+
+def worlds_grid() -> dict[str, SensorSpec]:
+    """Return the campus and hall runs, ``sim-WORLD-SPEED-sSEED``, at 5 Hz."""
+    return {f'sim-{world}-{speed}-s{seed}': SensorSpec(
+        sensor, motion, WORLD_DURATIONS.get((world, speed), WORLD_DURATION), world, seed,
+        WORLD_RATE)
+        for world, sensor in WORLD_SENSORS.items() for speed, motion in WORLD_SPEEDS.items()
+        for seed in WORLD_SEEDS}
+
+
+GRIDS: dict[str, dict[str, SensorSpec]] = {'deskew': deskew_grid(), 'worlds': worlds_grid()}
 """Groups of datasets a benchmark run leaves out unless asked (``--grid``): ``deskew``
 is the rotating lidars driven ``gentle``, ``spin`` and ``aggressive`` and turning at
-1.5 rad/s, to be run with de-skewing on and off."""
+1.5 rad/s, to be run with de-skewing on and off; ``worlds`` is the outdoor campus and
+the convention hall (:mod:`laser_odom.core.simulation.world`), slow and fast, at 5 Hz,
+three seeds each."""
 
 
 @dataclass
