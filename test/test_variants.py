@@ -1,5 +1,6 @@
 """Derived datasets: as a bag holds them, copies with range noise, fast-robot re-stamping."""
 
+import json
 import math
 
 import numpy as np
@@ -108,13 +109,21 @@ def test_bench_perturb_prints_the_spread_over_noisy_copies(tmp_path, capsys):
                        '--no-progress', '--json', str(out)]) == 0
     printed = capsys.readouterr().out
     assert 'median [worst] over 2 copies' in printed
-    import json
     payload = json.loads(out.read_text())
     assert [row['copy'] for row in payload['rows']] == [1, 2]
     assert payload['rows'][0]['ate'] != payload['rows'][1]['ate']
     spread, = payload['spread']
     assert spread['worst']['ate'] == max(row['ate'] for row in payload['rows'])
     assert spread['worst']['ate'] < 0.1 and spread['worst']['failed'] == 0
+    # Side by side in two processes: the same figures, row for row.
+    side = tmp_path / 'side.json'
+    assert bench_main(['--matchers', 'plicp', '--datasets', 'sim-gentle-drop20', '--priors',
+                       'constant_velocity', '--perturb', '2', '--no-search-table',
+                       '--no-progress', '--jobs', '2', '--json', str(side)]) == 0
+    assert [(row['copy'], row['ate'], row['failed']) for row in
+            json.loads(side.read_text())['rows']] == [
+        (row['copy'], row['ate'], row['failed']) for row in payload['rows']]
+    assert bench_main(['--datasets', 'sim-gentle-drop20', '--jobs', '0']) == 2
     assert bench_main(['--datasets', 'sim-gentle-drop20', '--perturb', '-1']) == 2
     assert '--perturb must be >= 0' in capsys.readouterr().err
 

@@ -30,22 +30,19 @@ from __future__ import annotations
 
 import argparse
 from functools import lru_cache
-import itertools
 import json
 import logging
 import math
 from pathlib import Path
 import sys
-import time
-from typing import Any, Callable, Mapping, Sequence, TextIO
+from typing import Any, Callable, Mapping, Sequence
 
-from laser_odom.core.configuration.pipeline import pipeline_config_from_params
 from laser_odom.core.datasets import (
     as_received, DatasetError, discover_datasets, KNOWN_DATASETS, load_dataset,
-    RANGE_NOISE_M, SUBSAMPLED_DATASETS, subsampled_datasets, with_range_noise)
+    RANGE_NOISE_M, SUBSAMPLED_DATASETS, subsampled_datasets)
 from laser_odom.core.evaluation.benchmark import (
-    BENCH_PRIORS, benchmark_run, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS,
-    REAL_REFERENCE_NOISE, REFERENCE_MODES, SIMULATED, simulated_scanner, wheel_odometry_row)
+    BENCH_PRIORS, BenchRow, DEFAULT_BENCH_PRIORS, DESKEW_MODES, GRIDS, REAL_REFERENCE_NOISE,
+    REFERENCE_MODES, SIMULATED)
 from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE, ReferenceNoise
 from laser_odom.core.evaluation.search_timing import search_timing, SearchTimingRow
 from laser_odom.core.evaluation.spread import spread_rows
@@ -57,6 +54,7 @@ from laser_odom.io.bag_dataset import (
 from laser_odom.io.bag_reader import BagError
 from laser_odom.io.params_file import ParamsFileError, read_params_files
 from laser_odom.io.text_output import reader_may_leave, write_text_atomically
+from laser_odom.tools.bench_runs import dataset_copies, run_tasks, simulated_here
 from laser_odom.tools.bench_table import (
     format_nees_table, format_search_table, format_spread_table, format_table, machine_line,
     provenance)
@@ -67,29 +65,6 @@ LOGGER = logging.getLogger('laser_odom.tools.bench')
 
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / 'shared' / 'data'
 """``../shared/data`` beside a source checkout, the project's real logs."""
-
-
-class ProgressBar:
-    """A one-line progress bar on stderr, redrawn at most every 0.2 s."""
-
-    def __init__(self, label: str, total: int, stream: TextIO | None = None) -> None:
-        """Start a bar for ``total`` items on ``stream`` (default: the current stderr)."""
-        self.label, self.total = label, max(total, 1)
-        self.stream = stream if stream is not None else sys.stderr
-        self.last_draw = 0.0
-
-    def __call__(self, done: int) -> None:
-        """Redraw with ``done`` items finished."""
-        now = time.monotonic()
-        if now - self.last_draw < 0.2 and done < self.total:
-            return
-        self.last_draw = now
-        filled = int(30 * done / self.total)
-        self.stream.write(f'\r{self.label:<52} [{"#" * filled}{"." * (30 - filled)}] '
-                          f'{done}/{self.total}')
-        if done >= self.total:
-            self.stream.write('\n')
-        self.stream.flush()
 
 
 def progress_wanted(args: argparse.Namespace) -> bool:
@@ -155,6 +130,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              'the dataset once, as received)')
     parser.add_argument('--range-noise', type=float, default=RANGE_NOISE_M, metavar='M',
                         help=f'range noise of a --perturb copy [m] (default {RANGE_NOISE_M:g})')
+    parser.add_argument('--jobs', type=int, default=1, metavar='N',
+                        help='run the copies of the datasets in N processes side by side '
+                             '(default 1; the figures are the same, the timings are taken '
+                             'with the processes sharing the machine)')
     parser.add_argument('--json', type=Path, default=None, help='also write rows as JSON')
     parser.add_argument('--no-progress', action='store_true',
                         help='no progress bar (it is drawn on stderr only when stderr is '
@@ -259,11 +238,6 @@ def reference_noise(args: argparse.Namespace, name: str) -> ReferenceNoise:
     return ReferenceNoise.degrees(args.reference_noise_m, args.reference_noise_deg)
 
 
-def simulated_here(name: str) -> bool:
-    """Tell whether a dataset is simulated by the benchmark (truth as its reference)."""
-    return name in SIMULATED or any(name in grid for grid in GRIDS.values())
-
-
 def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]]:
     """Run every selected dataset x matcher x prior x deskew; return rows, search timings."""
     for option, value in (('--reference-noise-m', args.reference_noise_m),
@@ -293,57 +267,20 @@ def run(args: argparse.Namespace) -> tuple[list[BenchRow], list[SearchTimingRow]
     progress = progress_wanted(args)
     if args.perturb < 0 or not (math.isfinite(args.range_noise) and args.range_noise >= 0.0):
         raise ValueError('--perturb must be >= 0 and --range-noise a finite number >= 0')
+    if args.jobs < 1:
+        raise ValueError(f'--jobs must be at least 1, got {args.jobs}')
+    tasks: list[tuple] = []
     for name in names:
         loaded = loaders[name]()
         noise = reference_noise(args, name)
         for copy, dataset in dataset_copies(loaded, args.perturb, args.range_noise):
-            rows += _dataset_rows(dataset, copy, matchers, priors, deskews, references,
-                                  values, noise, progress)
+            tasks.append((dataset, copy, matchers, priors, deskews, references, values, noise,
+                          progress and args.jobs == 1))
         if not args.no_search_table:
             searches.append(search_timing(as_received(loaded)))
+    for task_rows in run_tasks(tasks, args.jobs):
+        rows += task_rows
     return rows, searches
-
-
-def dataset_copies(dataset: Dataset, copies: int, sigma: float) -> list[tuple[int, Dataset]]:
-    """Return the dataset as the node receives it (copy 0), or ``copies`` noisy copies.
-
-    Every copy is what a bag of it holds (float32 LaserScan fields,
-    :func:`.datasets.variants.as_received`); copy k > 0 first has Gaussian noise of
-    ``sigma`` on every range, drawn from seed k.
-    """
-    if copies == 0:
-        return [(0, as_received(dataset))]
-    return [(seed, as_received(with_range_noise(dataset, seed, sigma)))
-            for seed in range(1, copies + 1)]
-
-
-def _dataset_rows(dataset: Dataset, copy: int, matchers: Sequence[str],
-                  priors: Sequence[str], deskews: Sequence[str | None],
-                  references: Sequence[str | None], values: Mapping[str, Any],
-                  noise: ReferenceNoise, progress: bool) -> list[BenchRow]:
-    """Run every matcher x prior x deskew x reference on one copy of a dataset."""
-    rows: list[BenchRow] = []
-    name = dataset.name
-    has_odometry = len(dataset.odometry) > 0
-    if copy <= 1 and 'odom' in priors and has_odometry and len(dataset.reference):
-        rows.append(wheel_odometry_row(dataset))
-    for matcher in matchers:
-        for prior in priors:
-            if prior == 'odom' and not has_odometry:
-                continue
-            for deskew, reference in itertools.product(deskews, references):
-                label = ' '.join(filter(None, (name, matcher, prior, deskew, reference,
-                                               f'copy {copy}' if copy else None)))
-                bar = ProgressBar(label, len(dataset.scans)) if progress else None
-                config = pipeline_config_from_params({**values, 'matcher': matcher})
-                if simulated_here(name):
-                    config = simulated_scanner(config)
-                row = benchmark_run(dataset, matcher, prior, progress=bar, config=config,
-                                    deskew=deskew, reference_noise=noise,
-                                    reference=reference)
-                row.copy = copy
-                rows.append(row)
-    return rows
 
 
 def main(argv: Sequence[str] | None = None) -> int:
