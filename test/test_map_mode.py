@@ -207,3 +207,27 @@ def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office
     assert registrar._second_opinion(pipeline.matcher, previous, current, truth,
                                      pipeline.config, right) is right
     assert pipeline.counters['map_disputed'] == 1
+
+
+def test_a_map_match_is_not_held_to_the_usual_share_of_paired_points():
+    # A scan that sees new ground pairs fewer of its points with the map than usual;
+    # its pose is no worse for that. Against the previous scan the same shortfall
+    # still fails the match (the two scans should overlap as usual).
+    from laser_odom.core.events import EventLog as Log
+    from laser_odom.core.matchers import MatchResult
+    from laser_odom.core.registration.registrar import Registrar
+
+    def match(inliers: float, residual: float) -> MatchResult:
+        return MatchResult(np.zeros(3), True, 5, inliers, residual, np.eye(3), np.eye(3),
+                           correspondences=300)
+
+    registrar = Registrar(Log(lambda message: None))
+    for _ in range(20):
+        registrar.usual.add(match(0.9, 0.01))
+    settings = PipelineConfig()
+    new_ground = match(0.45, 0.01)
+    assert registrar.local_failure(new_ground, np.zeros(3), settings) == 'few_inliers'
+    assert registrar.local_failure(new_ground, np.zeros(3), settings, against_map=True) == ''
+    # The residual still judges a map match.
+    assert registrar.local_failure(match(0.9, 0.05), np.zeros(3), settings,
+                                   against_map=True) == 'high_residual'

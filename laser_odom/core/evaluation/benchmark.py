@@ -369,11 +369,13 @@ def benchmark_run(dataset: Dataset, matcher: str, prior: str = 'constant_velocit
 def simulated_scanner(config: PipelineConfig) -> PipelineConfig:
     """Return ``config`` for the simulated scanner: exact but for its noise.
 
-    The heading walk of a real scanner (``covariance_heading_walk``, fitted to the
-    real logs; :mod:`laser_odom.core.uncertainty.pose_uncertainty`) is not there.
+    The heading walk of a real scanner (``covariance_heading_walk`` and
+    ``map_covariance_heading_walk``, fitted to the real logs;
+    :mod:`laser_odom.core.uncertainty.pose_uncertainty`) is not there.
     """
     matcher_config = dataclasses.replace(config.resolved_matcher_config(),
-                                         covariance_heading_walk=0.0)
+                                         covariance_heading_walk=0.0,
+                                         map_covariance_heading_walk=0.0)
     return dataclasses.replace(config, matcher_config=matcher_config)
 
 

@@ -54,7 +54,8 @@ that mattered most, ATE 0.14 -> 0.01 m), the gates, keyframes and the global sea
 
 NOT_SEARCHED = ('covariance_scale', 'covariance_shared_scan', 'covariance_bias',
                 'covariance_bias_correlation', 'covariance_baseline_falloff',
-                'covariance_heading_walk', 'map_covariance_scale', 'map_covariance_shared')
+                'covariance_heading_walk', 'map_covariance_heading_walk',
+                'map_covariance_scale', 'map_covariance_shared')
 """Matcher parameters left out: they calibrate the covariance, not the pose."""
 
 RANGES: dict[str, tuple[float, float]] = {

@@ -125,10 +125,12 @@ class StepErrorModel:
 
         Consecutive matches against the map share the map's error, which does not add
         up (``map_covariance_shared``); what the map does not share is white. A real
-        scanner's heading walk (``covariance_heading_walk``) errs the map along with the
-        scans, so it stays.
+        scanner's heading walk errs the map along with the scans, so it stays, but
+        slower than scan to scan (``map_covariance_heading_walk``: the map keeps the
+        walls a revisit matches again).
         """
-        return cls(config.map_covariance_shared, heading_walk=config.covariance_heading_walk)
+        return cls(config.map_covariance_shared,
+                   heading_walk=config.map_covariance_heading_walk)
 
     def shares(self, scans_apart: int = 1) -> tuple[float, float]:
         """Return the shared-scan and bias shares of a match spanning ``scans_apart`` scans.

@@ -33,11 +33,13 @@ MAX_VIEW_BIN = math.radians(1.0)
 """Coarsest bearing bin of a view [rad]."""
 
 JOIN_INLIER_SHARE = 0.8
-"""A scan joins the map only when its match paired at least this share of the usual
-inlier ratio of accepted matches..."""
+"""A match against the previous scan fits as usual when it paired at least this share
+of the usual inlier ratio (a map match is not held to it: the map covers only what it
+has seen)..."""
 
 JOIN_RESIDUAL_RATIO = 2.0
-"""...and its residual is at most this multiple of the usual one."""
+"""...and its residual is at most this multiple of the usual one (map matches too: a
+scan joins the map only then)."""
 
 MAX_REFUSED = 5
 """After this many scans in a row that moved enough but fit the map too poorly to join
@@ -150,7 +152,8 @@ def fits_usual(match: MatchResult, usual_residual: float | None,
 
     At least :data:`JOIN_INLIER_SHARE` of the usual inlier ratio, and at most
     :data:`JOIN_RESIDUAL_RATIO` times the usual residual (either test is skipped
-    while its usual level is not known yet).
+    while its usual level is not known yet, or given as None: a match against the
+    map, whose coverage of the scan is no measure of its pose).
     """
     if usual_inliers is not None and match.inlier_ratio < JOIN_INLIER_SHARE * usual_inliers:
         return False
