@@ -338,7 +338,7 @@ class OdometryPipeline:
             self.keyframe = reference = deskewed(self.keyframe, measured)
         again_points = deskewed(current, measured)
         again = judged.registrar.register(self.matcher, reference, again_points,
-                                          verdict.pose, self.config, '')
+                                          verdict.pose, self.config, '', verify=False)
         second = judge_match(again, verdict.pose, self.config, again_points.length_scale)
         if second.status == 'rejected':
             return current, judged
