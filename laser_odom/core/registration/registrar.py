@@ -41,6 +41,7 @@ SEARCH_TRIGGERS = {
     'gap': 'the motion prior was dropped after a gap between scans',
     'no_prior': 'prior is none: every match starts with the global search',
     'rejected': 'the previous match was rejected, so its prediction is not trusted',
+    'poor_fit': 'the previous match fitted poorly, so its motion predicts nothing',
     'local_failed': 'the match from the prediction failed',
     'doubtful': 'the prediction is a step too large or too uncertain for the matcher '
                 'alone: its match is checked against the search',
@@ -209,6 +210,8 @@ class Registrar:
         """
         if local is None:  # else try_local began this registration
             self._begin(reference, current)
+        if untrusted:  # the next trusted prediction has no record yet
+            self.doubt.clear()
         prediction = self.predict(guess, untrusted, reference, current)
         mode = config.search.global_search
         if mode == 'always' or (mode == 'recover' and untrusted):
@@ -305,6 +308,7 @@ class Registrar:
         that fitted alike), so it is judged as that searched step.
         """
         self._begin(reference, current)
+        self.doubt.clear()  # found without a trusted prediction
         start = found.match.pose
         refined = self.local_match(matcher, reference, current, start, True)
         if self.local_failure(refined, start, config):
