@@ -28,6 +28,7 @@ off by a few centimetres and degrees), so the search's cost is paid where it is 
 from __future__ import annotations
 
 from collections import deque
+from typing import Iterable
 
 import numpy as np
 
@@ -61,12 +62,23 @@ class PredictionDoubt:
         """Forget the recent misses."""
         self._misses.clear()
 
-    def record(self, guess: se2.Pose, pose: se2.Pose) -> None:
-        """Record how far a trusted prediction ``guess`` was from the step matched."""
-        if se2.is_finite_pose(pose):
-            correction = se2.relative(guess, pose)
-            self._misses.append((float(np.hypot(correction[0], correction[1])),
-                                 abs(float(se2.wrap_angle(correction[2])))))
+    def record(self, guess: se2.Pose, pose: se2.Pose,
+               alternatives: Iterable[np.ndarray] = ()) -> None:
+        """Record how far a trusted prediction ``guess`` was from the step matched.
+
+        A step chosen among ``alternatives`` that fit alike (taken nearest the
+        prediction) does not confirm the prediction: it may have missed by as much as
+        the farthest of them. Counted so, a prediction that led to an alias of a
+        repetitive scene stays in doubt, instead of being confirmed by its own choice
+        (a corridor of pillars 1.2 m apart, driven at 1.1 m per scan: every later step
+        was a silent alias).
+        """
+        misses = [se2.relative(guess, other) for other in [pose, *alternatives]
+                  if se2.is_finite_pose(other)]
+        if misses:
+            missed = np.array(misses)
+            self._misses.append((float(np.max(np.hypot(missed[:, 0], missed[:, 1]))),
+                                 float(np.max(np.abs(se2.wrap_angle(missed[:, 2]))))))
 
     def doubt(self, guess: se2.Pose, config: AcceptanceConfig) -> str:
         """Return why the match from ``guess`` must be checked by the search, '' if not."""

@@ -238,7 +238,8 @@ class Registrar:
             else:
                 registration = Registration(local, local_failure=failure)
         if not untrusted and verify and registration.match.converged:
-            self.doubt.record(guess, registration.match.pose)
+            self.doubt.record(guess, registration.match.pose,
+                              [pose for pose, _ in registration.alternatives])
         registration.prediction = prediction
         return registration
 
