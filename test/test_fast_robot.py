@@ -34,8 +34,10 @@ SURPRISES = {'stop': se2.pose(0.0, 0.0, 0.0), 'side': se2.pose(0.0, 0.3, 0.0)}
 
 
 def surprise_step(matcher: str, surprise: np.ndarray, seed: int = 3):
-    """Drive six scans at :data:`CRUISE` down a corridor, then ``surprise``; return the
-    last step's error and its estimate."""
+    """Drive six scans at :data:`CRUISE` down a corridor, then ``surprise``.
+
+    Return the last step's error, its estimate and the pipeline.
+    """
     world = get_world('corridor')
     rng = np.random.default_rng(seed)
     poses = [world.path.poses_at(np.array([30.0]))[0]]
@@ -54,8 +56,11 @@ def surprise_step(matcher: str, surprise: np.ndarray, seed: int = 3):
 
 @pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
 def test_a_fast_robot_that_stops_is_found(matcher):
-    """Before: from the 0.6 m prediction the match slid along the corridor (plicp 0.62 m
-    off, NEES 670: silent). Now the search finds where the robot stopped."""
+    """Find where the robot stopped, though 0.6 m was predicted.
+
+    Before, the match from the prediction slid along the corridor (plicp 0.62 m off,
+    NEES 670: silent); now the search finds the step.
+    """
     error, estimate, pipeline = surprise_step(matcher, SURPRISES['stop'])
     assert np.hypot(error[0], error[1]) < 0.03, (error, estimate.status)
     assert abs(error[2]) < math.radians(0.5), error
@@ -64,8 +69,10 @@ def test_a_fast_robot_that_stops_is_found(matcher):
 
 @pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
 def test_a_fast_robot_that_steps_aside_is_found_or_announced(matcher):
-    """Before: plicp took a 0.6 m wrong step with a covariance of millimetres (NEES
-    3606). Now the step is right, or its covariance covers the error."""
+    """Find a sidestep, or announce it with a covariance that covers the error.
+
+    Before, plicp took a 0.6 m wrong step with a covariance of millimetres (NEES 3606).
+    """
     error, estimate, _ = surprise_step(matcher, SURPRISES['side'])
     found = np.hypot(error[0], error[1]) < 0.03 and abs(error[2]) < math.radians(0.5)
     announced = nees(error, estimate.step_covariance) <= ANNOUNCED_NEES
@@ -85,8 +92,8 @@ that fit poorly. Open: issue 38 asks for none."""
 
 @pytest.mark.parametrize('dataset', FAST_LOGS)
 @pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
-def test_fast_logs_have_no_silent_failure_with_the_default_prior(real_log, matcher,
-                                                                  dataset):
+def test_fast_logs_have_no_silent_failure_with_the_default_prior(
+        real_log, matcher, dataset):
     """Before: intel-kf-fast 21/10, 8/5, 12/6 failed/silent; fr079/10-fast nicp 15/2."""
     scans = as_received(real_log(dataset))
     row = benchmark_run(scans, matcher, 'constant_velocity',
