@@ -80,14 +80,19 @@ class PredictionDoubt:
             self._misses.append((float(np.max(np.hypot(missed[:, 0], missed[:, 1]))),
                                  float(np.max(np.abs(se2.wrap_angle(missed[:, 2]))))))
 
-    def doubt(self, guess: se2.Pose, config: AcceptanceConfig) -> str:
-        """Return why the match from ``guess`` must be checked by the search, '' if not."""
+    def doubt(self, guess: se2.Pose, config: AcceptanceConfig, unproven: bool = True) -> str:
+        """Return why the match from ``guess`` must be checked by the search, '' if not.
+
+        ``unproven=False`` leaves out the doubt of a prediction with too short a record
+        (:data:`MIN_RECORD`): for a registrar that matches only now and then (the
+        previous scan's second opinion against a local map), whose record stays short.
+        """
         linear = float(np.hypot(guess[0], guess[1]))
         angular = abs(float(se2.wrap_angle(guess[2])))
         if linear >= config.max_correction_linear or angular >= config.max_correction_angular:
             return (f'a predicted step of {linear:.2f} m / {np.degrees(angular):.1f} deg, '
                     'beyond the correction gate: a stop would pass unseen')
-        if len(self._misses) < MIN_RECORD:
+        if unproven and len(self._misses) < MIN_RECORD:
             return f'{len(self._misses)} trusted predictions since the last search'
         if self._misses:
             missed = np.max(np.array(self._misses), axis=0)

@@ -282,8 +282,10 @@ class Registrar:
         """Run the match from a trusted prediction; return it and whether it passed.
 
         Passed: no :meth:`local_failure` and the prediction not in doubt
-        (:mod:`.doubt`), the result :meth:`register` would return without searching
-        (with ``global_search: always`` nothing passes here). When it did not pass,
+        (:mod:`.doubt`; a short record is no doubt here: the local map's registrars
+        match from a prediction only now and then), the result :meth:`register`
+        would return without searching (with ``global_search: always`` nothing passes
+        here). When it did not pass,
         :meth:`register` goes on with its match (``local``).
         """
         self._begin(reference, current)
@@ -291,7 +293,7 @@ class Registrar:
         passed = (config.search.global_search != 'always'
                   and not self.local_failure(local, guess, config)
                   and not (config.search.global_search == 'recover'
-                           and self.doubt.doubt(guess, config.acceptance)))
+                           and self.doubt.doubt(guess, config.acceptance, False)))
         if passed:
             self.doubt.record(guess, local.pose)
         registration = Registration(local)
