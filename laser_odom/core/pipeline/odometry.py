@@ -295,6 +295,15 @@ class OdometryPipeline:
             # on the prediction. The next match starts from rest, untrusted.
             self.motion.reset()
             self.untrusted = 'rejected'
+        elif registration.match.extra.get('poor_fit'):
+            # Even the widened search found no pose that fits well: the step taken is a
+            # best guess, announced with a covariance over the window, and a velocity
+            # from it would send the next prediction astray (fr079 every 10th scan at
+            # 10 Hz: a 5 m guess, then a rejection published as the guess). The next
+            # match starts from rest, searched.
+            self.motion.reset()
+            judged.registrar.accepted(registration.match)
+            self.untrusted = 'poor_fit'
         elif registration.alternatives:
             # Poses that fit alike (a featureless corridor): the step taken is one of
             # them, not a measured motion, and a velocity from it would carry the pick on
@@ -348,7 +357,7 @@ class OdometryPipeline:
             self.keyframe = reference = deskewed(self.keyframe, measured)
         again_points = deskewed(current, measured)
         again = judged.registrar.register(self.matcher, reference, again_points,
-                                          verdict.pose, self.config, '')
+                                          verdict.pose, self.config, '', verify=False)
         second = judge_match(again, verdict.pose, self.config, again_points.length_scale)
         if second.status == 'rejected':
             return current, judged

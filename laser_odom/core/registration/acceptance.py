@@ -63,8 +63,11 @@ def judge_match(registration: Registration, guess: se2.Pose, config: PipelineCon
         match.extra['window'] = window
         if config.acceptance.rejected_motion == 'predict':
             # The step is the prediction, as uncertain as its measured error when it
-            # was trusted; else it is anywhere in the window.
-            covariance = (rejected_covariance(window) if trusted is None
+            # was trusted and nothing spoke against it; else - untrusted, or its match
+            # failed or was doubted and the search found nothing either - it is
+            # anywhere in the window.
+            covariance = (rejected_covariance(window)
+                          if trusted is None or registration.searched
                           else trusted.covariance)
             return MatchVerdict(np.array(guess, dtype=float), covariance, 'rejected')
         return MatchVerdict(se2.pose(), rejected_covariance(window), 'rejected')

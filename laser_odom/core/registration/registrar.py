@@ -29,6 +29,7 @@ from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import MatchResult, ScanMatcher
 from laser_odom.core.motion.blind_prior import Prediction, StepHistory
+from laser_odom.core.registration.doubt import PredictionDoubt
 from laser_odom.core.registration.recovery import search_and_choose
 from laser_odom.core.registration.rejection import (
     correction_from, describe_rejection, rejection_reason)
@@ -40,7 +41,10 @@ SEARCH_TRIGGERS = {
     'gap': 'the motion prior was dropped after a gap between scans',
     'no_prior': 'prior is none: every match starts with the global search',
     'rejected': 'the previous match was rejected, so its prediction is not trusted',
+    'poor_fit': 'the previous match fitted poorly, so its motion predicts nothing',
     'local_failed': 'the match from the prediction failed',
+    'doubtful': 'the prediction is a step too large or too uncertain for the matcher '
+                'alone: its match is checked against the search',
     'always': 'global_search is always',
 }
 """Why the global search ran, by trigger name (counted as ``search_<trigger>``)."""
@@ -59,7 +63,7 @@ WEAK_FLAGS = ('weak', 'ambiguous', 'poor_fit', 'predicted')
 """Extras of a match that was not well constrained
 (:mod:`laser_odom.core.registration.acceptance`)."""
 
-ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always')
+ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always', 'doubtful')
 """Triggers that are how the odometry is meant to run: counted, not warned about."""
 
 RESIDUAL_WINDOW = 50
@@ -174,6 +178,8 @@ class Registrar:
         self.elapsed_s = 0.0
         """Seconds from the last good match to the scan being registered."""
         self.history = StepHistory()
+        self.doubt = PredictionDoubt()
+        """How far recent trusted predictions missed (:mod:`.doubt`)."""
         self._stamps = (0, 0)
         """Stamps of the reference and the current scan being registered."""
 
@@ -193,15 +199,19 @@ class Registrar:
 
     def register(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                  guess: se2.Pose, config: PipelineConfig, untrusted: str,
-                 local: MatchResult | None = None) -> Registration:
+                 local: MatchResult | None = None, verify: bool = True) -> Registration:
         """Match ``current`` against ``reference`` from ``guess``.
 
         ``untrusted`` names why the prediction cannot be trusted ('' when it can).
         ``local`` is the match from the prediction when it was already made
-        (:meth:`try_local`).
+        (:meth:`try_local`). A trusted prediction in doubt (:mod:`.doubt`) has its
+        match checked by the search; ``verify=False`` skips that, for a guess that is
+        itself a match just found (matched again after de-skewing).
         """
         if local is None:  # else try_local began this registration
             self._begin(reference, current)
+        if untrusted:  # the next trusted prediction has no record yet
+            self.doubt.clear()
         prediction = self.predict(guess, untrusted, reference, current)
         mode = config.search.global_search
         if mode == 'always' or (mode == 'recover' and untrusted):
@@ -216,13 +226,20 @@ class Registrar:
             if local is None:
                 local = self.local_match(matcher, reference, current, guess, True)
             failure = self.local_failure(local, guess, config, reference.virtual)
-            if failure and mode == 'recover':
+            doubt = '' if failure or not verify else self.doubt.doubt(guess,
+                                                                      config.acceptance)
+            if (failure or doubt) and mode == 'recover':
                 registration = self._search(matcher, reference, current, guess, config,
-                                            'local_failed', local, failure, True, prediction)
-                registration.failure_detail = self.describe_failure(failure, local, guess,
-                                                                    config)
+                                            'local_failed' if failure else 'doubtful',
+                                            local, failure, True, prediction)
+                registration.failure_detail = (
+                    self.describe_failure(failure, local, guess, config) if failure
+                    else doubt)
             else:
                 registration = Registration(local, local_failure=failure)
+        if not untrusted and verify and registration.match.converged:
+            self.doubt.record(guess, registration.match.pose,
+                              [pose for pose, _ in registration.alternatives])
         registration.prediction = prediction
         return registration
 
@@ -264,14 +281,21 @@ class Registrar:
                   guess: se2.Pose, config: PipelineConfig) -> tuple[Registration, bool]:
         """Run the match from a trusted prediction; return it and whether it passed.
 
-        Passed: no :meth:`local_failure`, the result :meth:`register` would return
-        without searching (with ``global_search: always`` nothing passes here). When it
-        did not pass, :meth:`register` goes on with its match (``local``).
+        Passed: no :meth:`local_failure` and the prediction not in doubt
+        (:mod:`.doubt`; a short record is no doubt here: the local map's registrars
+        match from a prediction only now and then), the result :meth:`register`
+        would return without searching (with ``global_search: always`` nothing passes
+        here). When it did not pass,
+        :meth:`register` goes on with its match (``local``).
         """
         self._begin(reference, current)
         local = self.local_match(matcher, reference, current, guess, True)
         passed = (config.search.global_search != 'always'
-                  and not self.local_failure(local, guess, config, reference.virtual))
+                  and not self.local_failure(local, guess, config, reference.virtual)
+                  and not (config.search.global_search == 'recover'
+                           and self.doubt.doubt(guess, config.acceptance, False)))
+        if passed:
+            self.doubt.record(guess, local.pose)
         registration = Registration(local)
         registration.prediction = self.predict(guess, '', reference, current)
         return registration, passed
@@ -287,6 +311,7 @@ class Registrar:
         that fitted alike), so it is judged as that searched step.
         """
         self._begin(reference, current)
+        self.doubt.clear()  # found without a trusted prediction
         start = found.match.pose
         refined = self.local_match(matcher, reference, current, start, True)
         if self.local_failure(refined, start, config, reference.virtual):

@@ -1,0 +1,103 @@
+"""When a trusted prediction is only a hypothesis: the match from it is checked by the search.
+
+A trusted prediction (the constant-velocity step after an accepted match) seeds the
+matcher, and the match from it is taken when it converged, paired as usual and stayed
+within ``max_correction_*`` of it (:mod:`laser_odom.core.registration.rejection`). That
+is right when the prediction is good to a fraction of the matcher's basin. When it is
+not, a match that converged to a wrong minimum passes those checks and is judged clean:
+a robot 5-10x faster than the logs' (their every 5th or 10th scan, 0.1 s apart) had
+twice the failed steps of ``prior: none``, most of them silent, on intel's keyframes.
+
+So the prediction is doubted, and the match from it competes with the global search's
+refined poses (:mod:`laser_odom.core.registration.recovery`, chosen by the surface fit,
+poses that fit alike reported as ambiguous), when
+
+* the predicted step is as large as the correction gate (``max_correction_*``): a robot
+  that stops, or turns the other way, then lies beyond what the match from the
+  prediction may correct - its failure could not even be detected;
+* or fewer than :data:`MIN_RECORD` trusted matches since the last untrusted one
+  showed how well it predicts;
+* or the prediction missed by more than :data:`MISS_FRACTION` of that gate on one of
+  the last :data:`RECENT_MISSES` trusted matches: the motion is changing faster than
+  the constant velocity follows.
+
+At full rate neither holds but for a few scans (fr079, mit-csail, intel: predictions
+off by a few centimetres and degrees), so the search's cost is paid where it is needed.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Iterable
+
+import numpy as np
+
+from laser_odom.core import se2
+from laser_odom.core.configuration.pipeline import AcceptanceConfig
+
+RECENT_MISSES = 10
+"""Trusted matches whose prediction errors are remembered."""
+
+MIN_RECORD = 3
+"""A prediction is doubted until this many trusted matches since the last untrusted
+one (a start, a gap, a rejection) showed how well it predicts: the first is the step
+of one match extrapolated (fr079 every 10th scan at 10 Hz: 1.35 m off, silent)."""
+
+MISS_FRACTION = 0.5
+"""A prediction that missed by this fraction of ``max_correction_*`` (0.25 m or
+14 deg by default) came near the edge of the matcher's basin: the next ones are
+checked. At full rate the constant velocity misses by at most 0.32 m / 24 deg (fr079,
+plicp; 99 % of the last-ten maxima below 0.19 m / 14 deg), so few scans are checked;
+on the fast logs it misses by more than that in nine of ten windows."""
+
+
+class PredictionDoubt:
+    """How far recent trusted predictions were from the steps matched: whether to doubt."""
+
+    def __init__(self) -> None:
+        """Start with no misses recorded."""
+        self._misses: deque[tuple[float, float]] = deque(maxlen=RECENT_MISSES)
+
+    def clear(self) -> None:
+        """Forget the recent misses."""
+        self._misses.clear()
+
+    def record(self, guess: se2.Pose, pose: se2.Pose,
+               alternatives: Iterable[np.ndarray] = ()) -> None:
+        """Record how far a trusted prediction ``guess`` was from the step matched.
+
+        A step chosen among ``alternatives`` that fit alike (taken nearest the
+        prediction) does not confirm the prediction: it may have missed by as much as
+        the farthest of them. Counted so, a prediction that led to an alias of a
+        repetitive scene stays in doubt, instead of being confirmed by its own choice
+        (a corridor of pillars 1.2 m apart, driven at 1.1 m per scan: every later step
+        was a silent alias).
+        """
+        misses = [se2.relative(guess, other) for other in [pose, *alternatives]
+                  if se2.is_finite_pose(other)]
+        if misses:
+            missed = np.array(misses)
+            self._misses.append((float(np.max(np.hypot(missed[:, 0], missed[:, 1]))),
+                                 float(np.max(np.abs(se2.wrap_angle(missed[:, 2]))))))
+
+    def doubt(self, guess: se2.Pose, config: AcceptanceConfig, unproven: bool = True) -> str:
+        """Return why the match from ``guess`` must be checked by the search, '' if not.
+
+        ``unproven=False`` leaves out the doubt of a prediction with too short a record
+        (:data:`MIN_RECORD`): for a registrar that matches only now and then (the
+        previous scan's second opinion against a local map), whose record stays short.
+        """
+        linear = float(np.hypot(guess[0], guess[1]))
+        angular = abs(float(se2.wrap_angle(guess[2])))
+        if linear >= config.max_correction_linear or angular >= config.max_correction_angular:
+            return (f'a predicted step of {linear:.2f} m / {np.degrees(angular):.1f} deg, '
+                    'beyond the correction gate: a stop would pass unseen')
+        if unproven and len(self._misses) < MIN_RECORD:
+            return f'{len(self._misses)} trusted predictions since the last search'
+        if self._misses:
+            missed = np.max(np.array(self._misses), axis=0)
+            if (missed[0] > MISS_FRACTION * config.max_correction_linear
+                    or missed[1] > MISS_FRACTION * config.max_correction_angular):
+                return (f'recent predictions missed by up to {missed[0]:.2f} m / '
+                        f'{np.degrees(missed[1]):.1f} deg')
+        return ''
