@@ -17,10 +17,8 @@ measured on (:mod:`laser_odom.core.motion.blind_prior`).
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field, replace
 import math
-import statistics
 
 import numpy as np
 
@@ -33,6 +31,7 @@ from laser_odom.core.registration.doubt import PredictionDoubt
 from laser_odom.core.registration.recovery import search_and_choose
 from laser_odom.core.registration.rejection import (
     correction_from, describe_rejection, rejection_reason)
+from laser_odom.core.registration.usual import UsualLevel
 from laser_odom.core.scan.laser_scan import ScanPoints
 from laser_odom.core.search import SearchResult, SearchWindow
 
@@ -65,44 +64,6 @@ WEAK_FLAGS = ('weak', 'ambiguous', 'poor_fit', 'predicted')
 
 ROUTINE_TRIGGERS = ('reset', 'no_prior', 'always', 'doubtful')
 """Triggers that are how the odometry is meant to run: counted, not warned about."""
-
-RESIDUAL_WINDOW = 50
-"""Accepted matches whose fit makes the usual level (the medians)."""
-
-MIN_RESIDUAL_SAMPLES = 10
-"""The checks against the usual level start once this many matches were accepted."""
-
-
-class UsualLevel:
-    """How accepted matches usually fit: medians of recent residuals and inlier ratios."""
-
-    def __init__(self) -> None:
-        """Start with no history."""
-        self._residuals: deque[float] = deque(maxlen=RESIDUAL_WINDOW)
-        self._inliers: deque[float] = deque(maxlen=RESIDUAL_WINDOW)
-
-    def clear(self) -> None:
-        """Forget the history (a new matcher measures its fit differently)."""
-        self._residuals.clear()
-        self._inliers.clear()
-
-    def add(self, match: MatchResult) -> None:
-        """Record how an accepted match fits."""
-        if math.isfinite(match.residual) and math.isfinite(match.inlier_ratio):
-            self._residuals.append(float(match.residual))
-            self._inliers.append(float(match.inlier_ratio))
-
-    def residual(self) -> float | None:
-        """Return the median recent residual, None before enough matches."""
-        if len(self._residuals) < MIN_RESIDUAL_SAMPLES:
-            return None
-        return statistics.median(self._residuals)
-
-    def inlier_ratio(self) -> float | None:
-        """Return the median recent inlier ratio, None before enough matches."""
-        if len(self._inliers) < MIN_RESIDUAL_SAMPLES:
-            return None
-        return statistics.median(self._inliers)
 
 
 @dataclass
