@@ -253,13 +253,26 @@ class Registrar:
         local = self.local_match(matcher, reference, current, guess, True)
         passed = (config.search.global_search != 'always'
                   and not self.local_failure(local, guess, config, reference.virtual)
-                  and not (config.search.global_search == 'recover'
-                           and self.doubt.doubt(guess, config.acceptance, False)))
+                  and not self.doubted(local, guess, config, reference.virtual))
         if passed:
             self.doubt.record(guess, local.pose)
         registration = Registration(local)
         registration.prediction = self.predict(guess, '', reference, current)
         return registration, passed
+
+    def doubted(self, match: MatchResult, guess: se2.Pose, config: PipelineConfig,
+                against_map: bool = False) -> str:
+        """Return why a match from a trusted ``guess`` that passed its checks is not taken.
+
+        The prediction, not the match, is in doubt (:mod:`.registration.doubt`; its
+        record, not the short-record rule: a second-opinion registrar matches only now
+        and then); '' when the match stands, or failed its own checks, or the global
+        search is not ``recover``.
+        """
+        if (config.search.global_search != 'recover'
+                or self.local_failure(match, guess, config, against_map)):
+            return ''
+        return self.doubt.doubt(guess, config.acceptance, False)
 
     def refine(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                found: Registration, config: PipelineConfig) -> Registration | None:
