@@ -13,6 +13,7 @@ with the committed results: test_docs.py.
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from laser_odom.core.evaluation.benchmark import BenchRow
@@ -214,6 +215,21 @@ def test_figures_tool_says_what_is_missing(results, tmp_path, capsys):
     assert capsys.readouterr().err.strip() == (
         'figures: error: no document holds the figure block nees (markers '
         '<!-- figures:nees:begin --> ...)')
+
+
+def test_a_real_data_test_runs_one_of_the_documented_copies():
+    """test_real_data and test_real_map build copy 1 as below: the benchmark's copy 1."""
+    from laser_odom.core.datasets import as_received, RANGE_NOISE_M, with_range_noise
+    from laser_odom.core.simulation import simulate
+    from laser_odom.tools.bench_runs import dataset_copies
+    log = simulate('office', duration=1.0, seed=4)
+    (seed, documented), *_ = dataset_copies(log, 5, RANGE_NOISE_M)
+    tested = as_received(with_range_noise(log, 1))
+    assert seed == 1 and len(tested.scans) == len(documented.scans) == len(log.scans)
+    for ours, theirs, raw in zip(tested.scans, documented.scans, log.scans):
+        assert np.array_equal(ours.ranges, theirs.ranges)
+        assert ours.ranges.dtype == theirs.ranges.dtype
+        assert 0 < np.abs(ours.ranges - raw.ranges).max() < 0.006  # noisy, not another log
 
 
 def test_figure_regression_allows_five_percent():
