@@ -96,11 +96,12 @@ class MapRegistrar:
 
         From a trusted prediction the match against the map stands when it is clean
         (:func:`clean_match`); else the match against the previous scan when that is
-        clean. Only when neither is do the global search and the full registration
-        (:meth:`.Registrar.register`) run against both, and the better judged result
-        (:func:`match_rank`; the map's on a tie) is taken. ``registrar`` is the one
-        that matches against the map (it keeps the usual fit of map matches); a
-        result taken from the previous scan is counted as ``map_fallback``.
+        clean (counted as ``map_fallback``). When neither is, or the prediction itself
+        is in doubt, the previous scan finds the step as in scan mode and the map
+        refines it (:meth:`_register_doubted`). Only without a previous scan (the
+        map just started) does the full registration (:meth:`.Registrar.register`)
+        search the map's view. ``registrar`` is the one that matches against the map
+        (it keeps the usual fit of map matches).
         """
         previous = self.map.previous_scan
         scale = current.length_scale
@@ -120,14 +121,14 @@ class MapRegistrar:
                         return judged
                     return self._second_opinion(matcher, previous, current, guess, config,
                                                 judged)
-            elif previous is not None and registrar.doubted(local, guess, config, True):
+            if previous is not None:
+                if not registrar.doubted(local, guess, config, True):
+                    against_scan = self._clean_scan_match(matcher, previous, current, guess,
+                                                          config)
+                    if against_scan is not None:
+                        return self._fallback(previous, *against_scan)
                 return self._register_doubted(matcher, registrar, view, previous, current,
                                               guess, config)
-            if previous is not None:
-                against_scan = self._clean_scan_match(matcher, previous, current, guess,
-                                                      config)
-                if against_scan is not None:
-                    return self._fallback(previous, *against_scan)
         registration = registrar.register(matcher, view, current, guess, config, untrusted,
                                           local)
         verdict = judge_match(registration, guess, config, scale)
@@ -143,19 +144,23 @@ class MapRegistrar:
     def _register_doubted(self, matcher: ScanMatcher, registrar: Registrar,
                           view: ScanPoints, previous: ScanPoints, current: ScanPoints,
                           guess: se2.Pose, config: PipelineConfig) -> JudgedMatch:
-        """Find the step when the prediction is in doubt: the scan finds, the map refines.
+        """Find the step when the map match from a trusted prediction cannot stand.
 
-        A trusted prediction that recently missed, or predicts a step as large as the
-        correction gate (:mod:`.registration.doubt`), is a guess to check, as without
-        a prediction (:meth:`_register_untrusted`): the global search against the
-        previous scan finds the step and the map refines it. The step taken is
-        recorded as the prediction's miss, so the doubt ends once the predictions hit
-        again (recorded only for a match that passed, the map's registrar stayed in
-        doubt: intel plicp took 2210 of 5505 steps from the previous scan, drift 1.1
-        -> 2.6 %).
+        The prediction recently missed, or predicts a step as large as the correction
+        gate (:mod:`.registration.doubt`), or its match against the map failed while
+        the previous scan's from the prediction is not clean either. The previous
+        scan then finds the step exactly as scan-to-scan odometry does (the match from
+        the prediction competes with the global search's, :meth:`.Registrar.register`)
+        and the map refines it (:meth:`_register_untrusted`): searched against the map's
+        view from afar, the step went wrong where scan mode found it (intel's keyframes
+        0.1 s apart, plicp: 30 failed steps, 6 silent; scan mode 12, none silent). The
+        step taken is recorded as the prediction's miss, so the doubt ends once the
+        predictions hit again (recorded only for a match that passed, the map's
+        registrar stayed in doubt: intel plicp took 2210 of 5505 steps from the
+        previous scan, drift 1.1 -> 2.6 %).
         """
         judged = self._register_untrusted(matcher, registrar, view, previous, current, guess,
-                                          config, 'doubtful')
+                                          config, '')
         if judged.verdict.status != 'rejected':
             registrar.doubt.record(guess, judged.verdict.pose)
         return judged
@@ -220,6 +225,10 @@ class MapRegistrar:
                             guess: se2.Pose, config: PipelineConfig,
                             untrusted: str) -> JudgedMatch:
         """Find a step without a trusted prediction: the previous scan finds, the map refines.
+
+        ``untrusted`` names why the prediction is not trusted; '' for a trusted one
+        whose map match cannot stand (:meth:`_register_doubted`), which the previous
+        scan's registrar checks as in scan mode.
 
         The full registration (the global search and its refinement) runs against the
         previous scan. A clean result (:func:`clean_match`) is refined against the
