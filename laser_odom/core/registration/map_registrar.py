@@ -268,13 +268,13 @@ class MapRegistrar:
 
         A match against the map that was accepted, not ambiguous, and leaves a residual
         about as small as usual (:func:`.local_map.reference.fits_usual`) places the
-        scan well enough to build on. How much of the scan the map covered is no test:
-        a scan that sees new ground pairs fewer points, and must join for the map to
-        grow there (held to the usual share, such scans were refused five in a row and
-        restarted the map: fr079 nicp 147 times, 1 mm of range noise moving the ATE
-        0.33 -> 0.81 m) (a degenerate one too: its weak direction took the prediction, and
-        the map, featureless along it, stays consistent). A rejected match restarts the
-        map from the current scan at the pose the pipeline took.
+        scan well enough to build on (a degenerate one too: its weak direction took the
+        prediction, and the map, featureless along it, stays consistent). How much of
+        the scan the map covered is no test: a scan that sees new ground pairs fewer
+        points, and must join for the map to grow there (held to the usual share, such
+        scans were refused five in a row and restarted the map: fr079 nicp 147 times,
+        1 mm of range noise moving the ATE 0.33 -> 0.81 m). A rejected match restarts
+        the map from the current scan at the pose the pipeline took.
         """
         if judged.verdict.status == 'rejected':
             self.map.restart(current, pose)
