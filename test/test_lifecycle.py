@@ -179,8 +179,8 @@ def test_the_managed_node_help_names_the_lifecycle(capsys):
     from laser_odom.ros.lifecycle import main
     assert main(['laser_odom_lifecycle_node', '--help']) == 0
     text = capsys.readouterr().out
-    assert text.startswith('laser_odom_lifecycle_node: laser_odom_node as a managed')
-    assert 'usage: laser_odom_lifecycle_node [-h] [--ros-args' in text
+    assert text.startswith('usage: laser_odom_lifecycle_node [-h] [--ros-args')
+    assert '\n\nlaser_odom_lifecycle_node: laser_odom_node as a managed' in text
     assert 'ros2 run laser_odom laser_odom_lifecycle_node --ros-args' in text
 
 

@@ -217,3 +217,42 @@ def test_timeout_bounds_the_wait_for_the_node(sim_bag, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert err.startswith('laser_odom_replay: error: --live: no laser_odom node found ')
     assert ' within 2 s; ' in err and err.count('\n') == 1  # was: within 30 s
+
+
+def test_a_node_found_late_gets_the_prior_on_its_remapped_topic(sim_bag, peer, monkeypatch):
+    """A node that joins the graph after the replay looked gets the prior where it reads it.
+
+    With ``--namespace`` and a short ``--timeout`` the replay looks for the node for a
+    third of it, then goes on with the namespace's topics. The node that then takes
+    them reads its wheel odometry on a remapped topic (``-r wheel_odom:=/wheel_odom``):
+    the replay published the prior on ``NS/wheel_odom`` all the same, and the node ran
+    without it (test_replay_rate's prior test, on a busy machine: "missing or stale on
+    39 scans" of 40). Once the topics are matched the graph shows the node, and the
+    replay takes its prior topic.
+    """
+    from laser_odom.ros.graph import NodeNotFound
+    from laser_odom.tools import replay_live
+    namespace, wheel = f'/late_{os.getpid()}', f'/wheel_late_{os.getpid()}'
+    stub = StubNode(peer, namespace)
+    stub.get_ready()
+    received: list[Odometry] = []
+    stub.node.create_subscription(Odometry, wheel, received.append, 10)
+
+    def not_yet(*args, **kwargs):  # the graph as a fresh participant may see it at first
+        raise NodeNotFound('no laser_odom node found (--namespace ...) within 1 s')
+
+    monkeypatch.setattr(replay_live, 'wait_for_node', not_yet)
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(DOMAIN))
+    args = replay.build_parser().parse_args(
+        [str(sim_bag), '--live', '--namespace', namespace, '--timeout', '30', '--prior', 'odom'])
+    client = replay_live._Client(args, 'odom')
+    try:
+        assert client.prior_pub.topic_name == f'{namespace}/wheel_odom'  # the guess
+        client.wait_for_node()
+        assert (client.prior_pub.topic_name, client.prior_listened) == (wheel, True)
+        assert client.node_name == f'{namespace}/laser_odom'
+        client.prior_pub.publish(Odometry())
+        assert peer.spin_until(lambda: received, 10.0)
+    finally:
+        client.close()
+        stub.close()

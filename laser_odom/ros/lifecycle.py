@@ -185,10 +185,14 @@ are applied on configure; nothing is published unless it is active.
 
 
 def lifecycle_usage() -> str:
-    """Return the managed node's help: what is its own, then the node's usage."""
+    """Return the managed node's help: the usage line, what is its own, the node's rest.
+
+    It starts with ``usage:`` as every tool's help does (``ros2 run ... --help``).
+    """
     plain_usage = usage().replace(
         '\n' + ' ' * len('usage: laser_odom_node '), '\n' + ' ' * len(f'usage: {PROG} '), 1)
-    return LIFECYCLE_USAGE + '\n' + plain_usage.replace('laser_odom_node', PROG)
+    synopsis, rest = plain_usage.replace('laser_odom_node', PROG).split('\n\n', 1)
+    return f'{synopsis}\n\n{LIFECYCLE_USAGE}\n{rest}'
 
 
 def main(args: list[str] | None = None) -> int:
