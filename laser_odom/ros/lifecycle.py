@@ -32,10 +32,10 @@ from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallba
 from sensor_msgs.msg import LaserScan as LaserScanMsg
 
 from laser_odom.io.params_file import ParamsFile
-from laser_odom.io.text_output import reader_may_leave
 from laser_odom.ros import node as plain
 from laser_odom.ros.diagnostics import ScanGapCounter
-from laser_odom.ros.usage import usage, wants_help
+from laser_odom.ros.run import run_node
+from laser_odom.ros.usage import usage
 
 PROG = 'laser_odom_lifecycle_node'
 
@@ -197,12 +197,7 @@ def lifecycle_usage() -> str:
 
 def main(args: list[str] | None = None) -> int:
     """Run the managed node until Ctrl-C; return the exit code (2 for bad parameters)."""
-    argv = sys.argv if args is None else args
-    if wants_help(argv):
-        with reader_may_leave(status=0):
-            print(lifecycle_usage(), flush=True)
-        return 0
-    return plain.main(args, LaserOdomLifecycleNode, PROG)
+    return run_node(args, LaserOdomLifecycleNode, PROG, lifecycle_usage)
 
 
 if __name__ == '__main__':
