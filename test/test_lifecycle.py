@@ -105,6 +105,14 @@ def test_the_managed_node_publishes_only_while_active(peer, dataset, monkeypatch
         assert capsys.readouterr().err.endswith(
             f'error: {NODE} cannot activate from state unconfigured (it can: configure, '
             'shutdown)\n')
+        # status (get, set, reset) looks for a node by its topics: unconfigured, it has
+        # none. It waited 30 s and said "no laser_odom node found ... start one".
+        assert ctl.main(['status']) == 2
+        assert capsys.readouterr().err == (
+            f'laser_odom_ctl: error: {NODE} is a managed node that is not configured: it has '
+            'no topics or services of its own until then; configure and activate it '
+            '(laser_odom_ctl lifecycle configure, then laser_odom_ctl lifecycle activate; or '
+            f'ros2 lifecycle set {NODE} configure)\n')
 
         # Configure: built with the values as they are now; inactive publishes nothing.
         assert lifecycle.change(Transition.TRANSITION_CONFIGURE), process.output()
