@@ -144,10 +144,7 @@ class _Client:
             Odometry if self.prior == 'odom' else Imu, topic, RELIABLE)
 
     def _adopt(self) -> None:
-        """Take the node that took the guessed topics, and its (remapped) prior topic.
-
-        With a short ``--timeout`` it may not have been on the graph when looked for.
-        """
+        """Take the node as the graph now shows it (seen late, or its prior topic seen late)."""
         fitting = [n for n in find_nodes(self.node) if self.target.fits(n) and n.ready]
         if len(fitting) == 1:
             self.found, self.node_name = fitting[0], fitting[0].name
@@ -194,27 +191,27 @@ class _Client:
         """Wait until the node's scan subscription and odometry publisher are matched.
 
         When the node listens to the prior's topic, its subscription is waited for too:
-        the first prior messages would otherwise be lost while it is being matched.
+        the first prior messages would otherwise be lost while it is being matched. The
+        graph fills in meanwhile: a node not seen when looked for, or its (remapped)
+        prior topic, is taken as it appears (:meth:`_adopt`).
         """
         def matched() -> bool:
+            if self.found is None or (self.prior in PRIOR_TOPICS and not self.prior_listened):
+                self._adopt()
             return (self.scan_pub.get_subscription_count() > 0
                     and self.odom_sub.get_publisher_count() > 0
                     and (not self.prior_listened or self.prior_pub.get_subscription_count() > 0))
 
         timeout = DISCOVERY_TIMEOUT if self.deadline is None else max(
             self.deadline - time.monotonic(), 0.0)
-        deadline = time.monotonic() + timeout
-        in_time = self.spin_until(matched, timeout)
-        if in_time and self.found is None:
-            self._adopt()
-            in_time = self.spin_until(matched, max(deadline - time.monotonic(), 0.0))
-        if not in_time:
+        if not self.spin_until(matched, timeout):
             within = DISCOVERY_TIMEOUT if self.deadline is None else self.timeout
             raise ReplayError(
                 f'--live: nothing subscribes to {self.scan_pub.topic_name} and publishes '
                 f'{self.odom_sub.topic_name} on {domain_text()} within '
                 f'{within:g} s; start laser_odom_node, or {OPTIONS_HINT}')
         self.spin_until(lambda: False, 0.3)  # let the node's side of the match settle
+        self.spin_until(matched, 1.0)  # a look more: a prior topic seen late is matched too
 
     def reset_node(self) -> bool:
         """Call the node's ``~/reset`` so the replay starts from the origin."""
