@@ -37,7 +37,7 @@ test: $(STAMP)
 	$(Q)$(BIN)/python -m pytest -q -rs -n 2 --dist worksteal test
 
 lint: $(STAMP)
-	$(Q)$(BIN)/python -m flake8 laser_odom test setup.py
+	$(Q)$(BIN)/python -m flake8 laser_odom test setup.py launch
 	$(Q)$(BIN)/python -m pydocstyle laser_odom setup.py
 
 demo: $(STAMP)

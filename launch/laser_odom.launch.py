@@ -1,17 +1,20 @@
-"""Start laser_odom_node with a parameter file, topic remappings and, optionally, RViz.
+"""Start laser_odom_node (or the managed node) with a parameter file, remappings, RViz.
 
     ros2 launch laser_odom laser_odom.launch.py scan_topic:=/base_scan rviz:=true
     # beside robot_localization's EKF (docs/robot_localization.md):
     ros2 launch laser_odom laser_odom.launch.py odom_topic:=laser_odom/odom publish_tf:=false
 
+    # a managed node, for a lifecycle manager (docs/node.md, "Managed node"):
+    ros2 launch laser_odom laser_odom.launch.py managed:=true use_sim_time:=true
+
 Arguments: ``scan_topic``, ``odom_topic``, ``pose_topic``, ``wheel_odom_topic``,
 ``params_file``, ``publish_tf``, ``publish_debug``, ``reference``, ``namespace``,
-``use_sim_time`` and ``rviz`` (``ros2 launch laser_odom laser_odom.launch.py -s`` lists
-them with their defaults). ``publish_tf``, ``publish_debug`` and ``reference`` left
-empty keep what the parameter file says; given, they override it. The node's other
-names (``imu``, ``~/reset``, ``~/set_pose``, ``~/matched_scan``, ``~/local_map``)
-resolve under ``namespace`` and the node name ``laser_odom``; the shipped RViz file
-assumes the defaults (no namespace).
+``use_sim_time``, ``managed`` and ``rviz`` (``ros2 launch laser_odom laser_odom.launch.py
+-s`` lists them with their defaults). ``publish_tf``, ``publish_debug`` and
+``reference`` left empty keep what the parameter file says; given, they override it.
+The node's other names (``imu``, ``~/reset``, ``~/set_pose``, ``~/matched_scan``,
+``~/local_map``) resolve under ``namespace`` and the node name ``laser_odom``; the
+shipped RViz file assumes the defaults (no namespace).
 """
 
 import os
@@ -44,9 +47,10 @@ def odometry_node(context):
         value = LaunchConfiguration(name).perform(context)
         if value:
             parameters[name] = value == 'true' if name.startswith('publish_') else value
+    managed = LaunchConfiguration('managed').perform(context) == 'true'
     return [Node(
         package=PACKAGE,
-        executable='laser_odom_node',
+        executable='laser_odom_lifecycle_node' if managed else 'laser_odom_node',
         name='laser_odom',
         namespace=LaunchConfiguration('namespace'),
         parameters=[LaunchConfiguration('params_file'), parameters],
@@ -102,6 +106,11 @@ def generate_launch_description():
             'use_sim_time', default_value='false',
             description='Use the /clock topic (bag playback, simulators) for the node '
                         'and RViz.'),
+        DeclareLaunchArgument(
+            'managed', default_value='false', choices=['true', 'false'],
+            description='Start laser_odom_lifecycle_node instead: the same node as a '
+                        'managed node, unconfigured until a lifecycle manager (or ros2 '
+                        'lifecycle set) configures and activates it.'),
         DeclareLaunchArgument(
             'rviz', default_value='false',
             description='Also start rviz2 with the shipped rviz/laser_odom.rviz (its '

@@ -27,6 +27,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg
 
 from laser_odom.core import se2
@@ -176,6 +177,38 @@ class Peer:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+class SimClock:
+    """``/clock`` from the test's peer: 0.1 s of sim time per tick, from ``start_ns``."""
+
+    STEP_NS = 100_000_000
+
+    def __init__(self, peer: Peer, start_ns: int) -> None:
+        """Create the ``/clock`` publisher on ``peer`` (nothing is sent before a tick)."""
+        self.peer, self.start_ns, self.ticks = peer, start_ns, 0
+        self._publisher = peer.node.create_publisher(Clock, '/clock', 10)
+        self._timer = None
+
+    @property
+    def now_ns(self) -> int:
+        """Return the last sim time sent."""
+        return self.start_ns + self.ticks * self.STEP_NS
+
+    def tick(self) -> None:
+        """Advance the clock by one step and send it."""
+        self.ticks += 1
+        self._publisher.publish(Clock(clock=ns_to_stamp(self.now_ns)))
+
+    def run(self) -> None:
+        """Tick every 0.1 s of wall time while the peer spins."""
+        self._timer = self.peer.node.create_timer(self.STEP_NS / 1e9, self.tick)
+
+    def stop(self) -> None:
+        """Stop ticking."""
+        if self._timer is not None:
+            self.peer.node.destroy_timer(self._timer)
+            self._timer = None
 
 
 class OdometryClient:

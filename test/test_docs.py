@@ -135,6 +135,14 @@ def test_readme_is_a_guide_under_200_lines_in_the_order_a_newcomer_needs():
                     'ros2 run laser_odom laser_odom_warmup', 'ros2 launch laser_odom'):
         assert any(command in line for line in lines), command
     assert '(docs/robot_localization.md)' in robot
+    # issue 39: where a user looks for them - the managed node, sim time, every launch argument
+    for words in ('`laser_odom_lifecycle_node`', '`managed:=true`', '`use_sim_time:=true`',
+                  '--live --clock', '(docs/node.md#managed-node-lifecycle)',
+                  '(docs/node.md#sim-time)', '(docs/node.md#launch-file-and-rviz)'):
+        assert words in robot, words
+    launch = (ROOT / 'launch' / 'laser_odom.launch.py').read_text()
+    arguments = re.findall(r"DeclareLaunchArgument\(\s*'(\w+)'", launch)
+    assert len(arguments) >= 12 and [a for a in arguments if f'`{a}`' not in robot] == []
     for journey in ('On your robot', 'Replaying a bag', 'Tuning on your bags', 'Benchmark'):
         body = text.split(f'## {journey}', 1)[1].split('\n## ', 1)[0]
         assert 'pip set-up' in body and 'colcon set-up' in body, journey

@@ -25,6 +25,7 @@ import setuptools
 import yaml
 
 from laser_odom.core.configuration.node import NodeConfig, parameter_specs
+from laser_odom.ros.lifecycle import LaserOdomLifecycleNode
 from laser_odom.ros.node import LaserOdomNode
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,7 +35,7 @@ PACKAGE = 'laser_odom'
 ARGUMENTS = {'scan_topic': 'scan', 'odom_topic': 'odom', 'pose_topic': 'pose',
              'wheel_odom_topic': 'wheel_odom', 'publish_tf': '', 'publish_debug': '',
              'reference': '',
-             'namespace': '', 'use_sim_time': 'false', 'rviz': 'false'}
+             'namespace': '', 'use_sim_time': 'false', 'managed': 'false', 'rviz': 'false'}
 """Launch arguments and their defaults (params_file defaults to the installed file)."""
 
 REMAPPED = {'scan': 'scan_topic', 'odom': 'odom_topic', 'pose': 'pose_topic',
@@ -468,6 +469,36 @@ def test_node_runs_with_the_launch_arguments(launch_api, context, tmp_path):
         assert not {'/robot1/odom', '/robot1/pose'} & graph_topics(node, 'publisher')
     finally:
         node.destroy_node()
+
+
+def test_managed_starts_the_lifecycle_node_with_the_same_arguments(
+        launch_api, context, monkeypatch, tmp_path):
+    """``managed:=true``: laser_odom_lifecycle_node, named, remapped and set up alike.
+
+    It starts unconfigured, with the launch file's parameters declared (applied on
+    configure); a lifecycle manager drives it by its name, ``laser_odom``.
+    """
+    description = load_launch_description()
+    with pytest.raises(ValueError, match='managed'):
+        launch_configuration(description, managed='yes')
+    plain = launch_configuration(description, reference='local_map', namespace='robot1')
+    config = dict(plain, managed='true')
+    node = odometry_node(description, config)
+    assert (node.package, node.executable, node.name) == (
+        PACKAGE, 'laser_odom_lifecycle_node', declared_node_name())
+    assert console_scripts(monkeypatch)[node.executable] == 'laser_odom.ros.lifecycle:main'
+    assert ros_arguments(node, config) == ros_arguments(
+        odometry_node(description, plain), plain)
+    assert odometry_node(description, plain).executable == 'laser_odom_node'
+    managed = LaserOdomLifecycleNode(context=context, cli_args=ros_arguments(node, config),
+                                     use_global_arguments=False)
+    try:
+        assert managed.get_fully_qualified_name() == '/robot1/laser_odom'
+        assert managed.get_parameter('reference').value == 'local_map'
+        assert managed._state_machine.current_state[1] == 'unconfigured'
+        assert getattr(managed, 'pipeline', None) is None  # built on configure
+    finally:
+        managed.destroy_node()
 
 
 def test_empty_overrides_keep_the_params_file(launch_api, context, tmp_path):

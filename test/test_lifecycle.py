@@ -12,17 +12,16 @@ import os
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from node_harness import (
-    call, latest_status, NodeProcess, odometry_pose, OdometryClient, pose_error,
+    call, latest_status, NodeProcess, odometry_pose, OdometryClient, pose_error, SimClock,
     STARTUP_TIMEOUT, TEST_WORLD, unique_domain_id)
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from rosgraph_msgs.msg import Clock
 
 from laser_odom.core import se2
 from laser_odom.core.simulation import LaserModel, simulate
-from laser_odom.ros.conversions import ns_to_stamp, scan_to_msg, stamp_to_ns
+from laser_odom.ros.conversions import scan_to_msg, stamp_to_ns
 
 DOMAIN = unique_domain_id()
 NAMESPACE = f'/managed_{os.getpid()}'
@@ -106,6 +105,14 @@ def test_the_managed_node_publishes_only_while_active(peer, dataset, monkeypatch
         assert capsys.readouterr().err.endswith(
             f'error: {NODE} cannot activate from state unconfigured (it can: configure, '
             'shutdown)\n')
+        # status (get, set, reset) looks for a node by its topics: unconfigured, it has
+        # none. It waited 30 s and said "no laser_odom node found ... start one".
+        assert ctl.main(['status']) == 2
+        assert capsys.readouterr().err.splitlines()[-1] + '\n' == (  # after any "waiting for"
+            f'laser_odom_ctl: error: {NODE} is a managed node that is not configured: it has '
+            'no topics or services of its own until then; configure and activate it '
+            '(laser_odom_ctl lifecycle configure, then laser_odom_ctl lifecycle activate; or '
+            f'ros2 lifecycle set {NODE} configure)\n')
 
         # Configure: built with the values as they are now; inactive publishes nothing.
         assert lifecycle.change(Transition.TRANSITION_CONFIGURE), process.output()
@@ -179,8 +186,8 @@ def test_the_managed_node_help_names_the_lifecycle(capsys):
     from laser_odom.ros.lifecycle import main
     assert main(['laser_odom_lifecycle_node', '--help']) == 0
     text = capsys.readouterr().out
-    assert text.startswith('laser_odom_lifecycle_node: laser_odom_node as a managed')
-    assert 'usage: laser_odom_lifecycle_node [-h] [--ros-args' in text
+    assert text.startswith('usage: laser_odom_lifecycle_node [-h] [--ros-args')
+    assert '\n\nlaser_odom_lifecycle_node: laser_odom_node as a managed' in text
     assert 'ros2 run laser_odom laser_odom_lifecycle_node --ros-args' in text
 
 
@@ -194,13 +201,7 @@ def test_cleanup_keeps_the_sim_time_clock_of_a_managed_node(peer):
     process = NodeProcess(DOMAIN, ['-r', f'__ns:={namespace}', '-p', 'publish_tf:=false'],
                           module='laser_odom.ros.lifecycle')
     lifecycle = Lifecycle(peer, f'{namespace}/laser_odom')
-    clock = peer.node.create_publisher(Clock, '/clock', 10)
-    start = 1_900_000_000 * SECOND
-    ticks = [0]
-
-    def tick() -> None:
-        ticks[0] += 1
-        clock.publish(Clock(clock=ns_to_stamp(start + ticks[0] * SECOND // 10)))
+    clock = SimClock(peer, 1_900_000_000 * SECOND)
 
     def clock_readers() -> int:
         return sum(topic == '/clock' for topic, _ in
@@ -219,13 +220,13 @@ def test_cleanup_keeps_the_sim_time_clock_of_a_managed_node(peer):
             assert lifecycle.change(transition), process.output()
         peer.spin_for(1.0)  # a reader destroyed by the cleanup would be gone by now
         assert clock_readers() == 1
-        timer = peer.node.create_timer(0.1, tick)
+        clock.run()
         # Its diagnostics come, paced and stamped by the clock it still reads.
         latest_status(peer, f'{namespace[1:]}/laser_odom: odometry', lambda v, s: True, 30.0)
-        peer.node.destroy_timer(timer)
+        clock.stop()
         stamps = [stamp_to_ns(msg.header.stamp) for _, msg in peer.diagnostics
                   if any(s.name.startswith(namespace[1:]) for s in msg.status)]
-        assert stamps and all(start < t <= start + ticks[0] * SECOND // 10 for t in stamps)
+        assert stamps and all(clock.start_ns < t <= clock.now_ns for t in stamps)
         assert process.interrupt() == 0
     finally:
         process.close()

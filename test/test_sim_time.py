@@ -13,7 +13,7 @@ import subprocess
 import sys
 
 from node_harness import (
-    NodeProcess, odometry_pose, OdometryClient, ROOT, TEST_WORLD, unique_domain_id)
+    NodeProcess, odometry_pose, OdometryClient, ROOT, SimClock, TEST_WORLD, unique_domain_id)
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -21,7 +21,7 @@ from rosgraph_msgs.msg import Clock
 
 from laser_odom.core.simulation import LaserModel, simulate
 from laser_odom.io.tum import read_tum
-from laser_odom.ros.conversions import ns_to_stamp, stamp_to_ns
+from laser_odom.ros.conversions import stamp_to_ns
 from laser_odom.ros.sim_time import ClockWatch, NO_CLOCK_WARNING
 from laser_odom.tools import replay
 from laser_odom.tools import simulate as simulate_tool
@@ -158,21 +158,14 @@ def test_live_replay_with_clock_drives_a_sim_time_node(peer, node, clocks, sim_b
 
 
 def test_status_answers_once_the_clock_moves(peer, node):
-    publisher = peer.node.create_publisher(Clock, '/clock', 10)
-    start = 1_800_000_000 * SECOND
-    ticks = [0]
-
-    def tick() -> None:
-        ticks[0] += 1
-        publisher.publish(Clock(clock=ns_to_stamp(start + ticks[0] * SECOND // 10)))
-
-    timer = peer.node.create_timer(0.1, tick)
+    clock = SimClock(peer, 1_800_000_000 * SECOND)
+    clock.run()
     try:
         ctl = _ctl('--namespace', NAMESPACE, 'status')
         assert peer.spin_until(lambda: ctl.poll() is not None, 120.0)
         out, err = ctl.communicate()
     finally:
-        peer.node.destroy_timer(timer)
+        clock.stop()
     assert ctl.returncode == 0, err
     assert out.startswith(f'{NODE[1:]}: odometry: ')
     values = dict(line.strip().split(': ', 1) for line in out.splitlines()[1:])

@@ -7,6 +7,7 @@ whole file stays well under a minute on two loaded cores.
 import math
 import os
 from pathlib import Path
+import re
 import subprocess
 import sys
 import types
@@ -416,3 +417,21 @@ def test_nothing_is_recommended_when_every_trial_fails(good_odom, tmp_path, caps
     assert err == (f'laser_odom_tune: error: no trial of nicp ran on the laser (see the '
                    f'failures above); nothing written to {out}\n')
     assert not out.exists()
+
+
+def test_the_tuned_file_scores_against_the_start_file_it_began_from(good_odom, tmp_path, capsys):
+    """Trial 0 ran the --params-file: the file's comments call its score the start's.
+
+    The summary said ``(start 0.0014628)`` and the written file ``(defaults 0.0014628)``
+    of the same number (the new-user trial of issue 39).
+    """
+    start = tmp_path / 'start.yaml'
+    start.write_text('/**:\n  ros__parameters:\n    prior: odom\n    max_scan_gap: 2.0\n')
+    out = tmp_path / 'tuned.yaml'
+    assert main([str(good_odom / 'bag'), '--matchers', 'nicp', '--trials', '1',
+                 '--params-file', str(start), '--output', str(out), '--quiet']) == 0
+    printed = capsys.readouterr().out
+    score = re.search(r'\(start ([0-9.e-]+)\); wrote', printed).group(1)
+    text = out.read_text()
+    assert f'(start {score})' in text and '(defaults ' not in text
+    assert read_params_files([out]).values['max_scan_gap'] == 2.0

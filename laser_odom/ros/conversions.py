@@ -203,6 +203,27 @@ CLOUD_FIELDS = [PointField(name=axis, offset=4 * k, datatype=PointField.FLOAT32,
 """``x y z`` float32 fields of the debug point cloud."""
 
 
+def point_cloud_msg(points: np.ndarray, fields: list[PointField], stamp: Time,
+                    frame_id: str) -> PointCloud2:
+    """Return float32 ``points`` (N, len(fields)) as a dense ``sensor_msgs/PointCloud2``.
+
+    The one builder of the node's clouds (the matched scan, the local map): each row
+    is a point, each column the float32 field of ``fields`` at that offset.
+    """
+    points = np.ascontiguousarray(points, dtype=np.float32)
+    msg = PointCloud2()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = 1, len(points)
+    msg.fields = fields
+    msg.is_bigendian = False
+    msg.point_step = 4 * len(fields)
+    msg.row_step = msg.point_step * len(points)
+    msg.data = points.tobytes()
+    msg.is_dense = True
+    return msg
+
+
 def matched_cloud_msg(estimate: OdometryEstimate, stamp: Time,
                       odom_frame: str) -> PointCloud2 | None:
     """Return the matched scan in ``odom_frame`` as ``sensor_msgs/PointCloud2`` (for RViz).
@@ -216,16 +237,7 @@ def matched_cloud_msg(estimate: OdometryEstimate, stamp: Time,
     world = se2.transform_points(estimate.pose, np.asarray(estimate.scan_points, float))
     xyz = np.zeros((len(world), 3), dtype=np.float32)
     xyz[:, :2] = world
-    msg = PointCloud2()
-    msg.header.stamp = stamp
-    msg.header.frame_id = odom_frame
-    msg.height, msg.width = 1, len(xyz)
-    msg.fields = CLOUD_FIELDS
-    msg.is_bigendian = False
-    msg.point_step, msg.row_step = 12, 12 * len(xyz)
-    msg.data = xyz.tobytes()
-    msg.is_dense = True
-    return msg
+    return point_cloud_msg(xyz, CLOUD_FIELDS, stamp, odom_frame)
 
 
 def initial_pose_from_msg(msg: PoseWithCovarianceStamped) -> tuple[se2.Pose, np.ndarray]:
@@ -255,6 +267,30 @@ def imu_yaw_from_msg(msg: Imu) -> tuple[int, float | None, float]:
                        and (q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) > 1e-6)
     yaw = se2.quaternion_to_yaw(q.x, q.y, q.z, q.w) if has_orientation else None
     return stamp_to_ns(msg.header.stamp), yaw, float(msg.angular_velocity.z)
+
+
+def wheel_odometry_msg(stamp_ns: int, pose: se2.Pose) -> Odometry:
+    """Return a wheel odometry sample as the node reads it (:func:`odometry_pose_from_msg`)."""
+    msg = Odometry()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.pose.pose = planar_pose_msg(pose)
+    return msg
+
+
+def imu_msg(stamp_ns: int, yaw: float, yaw_rate: float) -> Imu:
+    """Return an IMU sample as the node reads it (:func:`imu_yaw_from_msg`).
+
+    A non-finite ``yaw`` (an IMU without orientation) is sent as
+    ``orientation_covariance[0] = -1``, as ``sensor_msgs/Imu`` says.
+    """
+    msg = Imu()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    if math.isfinite(yaw):
+        msg.orientation = yaw_quaternion(yaw)
+    else:
+        msg.orientation_covariance[0] = -1.0
+    msg.angular_velocity.z = float(yaw_rate)
+    return msg
 
 
 def mounting_from_transform(translation: tuple[float, float, float],

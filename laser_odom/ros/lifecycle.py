@@ -32,10 +32,10 @@ from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallba
 from sensor_msgs.msg import LaserScan as LaserScanMsg
 
 from laser_odom.io.params_file import ParamsFile
-from laser_odom.io.text_output import reader_may_leave
 from laser_odom.ros import node as plain
 from laser_odom.ros.diagnostics import ScanGapCounter
-from laser_odom.ros.usage import usage, wants_help
+from laser_odom.ros.run import run_node
+from laser_odom.ros.usage import usage
 
 PROG = 'laser_odom_lifecycle_node'
 
@@ -185,20 +185,19 @@ are applied on configure; nothing is published unless it is active.
 
 
 def lifecycle_usage() -> str:
-    """Return the managed node's help: what is its own, then the node's usage."""
+    """Return the managed node's help: the usage line, what is its own, the node's rest.
+
+    It starts with ``usage:`` as every tool's help does (``ros2 run ... --help``).
+    """
     plain_usage = usage().replace(
         '\n' + ' ' * len('usage: laser_odom_node '), '\n' + ' ' * len(f'usage: {PROG} '), 1)
-    return LIFECYCLE_USAGE + '\n' + plain_usage.replace('laser_odom_node', PROG)
+    synopsis, rest = plain_usage.replace('laser_odom_node', PROG).split('\n\n', 1)
+    return f'{synopsis}\n\n{LIFECYCLE_USAGE}\n{rest}'
 
 
 def main(args: list[str] | None = None) -> int:
     """Run the managed node until Ctrl-C; return the exit code (2 for bad parameters)."""
-    argv = sys.argv if args is None else args
-    if wants_help(argv):
-        with reader_may_leave(status=0):
-            print(lifecycle_usage(), flush=True)
-        return 0
-    return plain.main(args, LaserOdomLifecycleNode, PROG)
+    return run_node(args, LaserOdomLifecycleNode, PROG, lifecycle_usage)
 
 
 if __name__ == '__main__':

@@ -21,7 +21,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 
 from laser_odom.core.pipeline.odometry import OdometryPipeline
-from laser_odom.ros.conversions import NANOSECONDS, stamp_to_ns
+from laser_odom.ros.conversions import NANOSECONDS, point_cloud_msg, stamp_to_ns
 
 MAP_TOPIC = '~/local_map'
 """The map's topic, under the node's name."""
@@ -44,16 +44,7 @@ def map_cloud_msg(means: np.ndarray, weights: np.ndarray, stamp: Time,
     points = np.zeros((len(means), 4), dtype=np.float32)
     points[:, :2] = means
     points[:, 3] = weights
-    msg = PointCloud2()
-    msg.header.stamp = stamp
-    msg.header.frame_id = frame_id
-    msg.height, msg.width = 1, len(points)
-    msg.fields = MAP_FIELDS
-    msg.is_bigendian = False
-    msg.point_step, msg.row_step = 16, 16 * len(points)
-    msg.data = points.tobytes()
-    msg.is_dense = True
-    return msg
+    return point_cloud_msg(points, MAP_FIELDS, stamp, frame_id)
 
 
 class MapCloud:

@@ -36,8 +36,6 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data, QoSProfile
@@ -48,19 +46,19 @@ from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline.estimate import OdometryEstimate
 from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.pipeline.warmup import warm_up
-from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
-from laser_odom.io.text_output import reader_may_leave
+from laser_odom.io.params_file import ParamsFile
 from laser_odom.ros import extrinsic
 from laser_odom.ros.conversions import (
     initial_pose_from_msg, matched_cloud_msg, published_messages, scan_from_msg, stamp_to_ns)
 from laser_odom.ros.diagnostics import (
     BUSY, DiagnosticsReporter, ScanGapCounter, Snapshot)
 from laser_odom.ros.extrinsic import TfInterface
-from laser_odom.ros.live import LiveParameters, StartupError
+from laser_odom.ros.live import LiveParameters
 from laser_odom.ros.map_cloud import MapCloud
 from laser_odom.ros.priors import PriorInputs
+from laser_odom.ros.run import run_node
 from laser_odom.ros.sim_time import ClockWatch
-from laser_odom.ros.usage import params_file_arguments, usage, wants_help
+from laser_odom.ros.usage import usage
 
 SCAN_QOS = QoSProfile(
     history=qos_profile_sensor_data.history, depth=1,
@@ -96,7 +94,7 @@ class LaserOdomNode(Node):
         """Declare parameters, build the pipeline and subscribe.
 
         ``params_files`` are the parsed files given with ``--params-file`` (to warn when
-        none of a file's sections addresses this node). Raises :class:`StartupError`
+        none of a file's sections addresses this node). Raises :class:`.live.StartupError`
         (after destroying the node) when the parameters are invalid, e.g. an unknown
         ``matcher``.
         """
@@ -363,49 +361,9 @@ class LaserOdomNode(Node):
         self._diagnostics_pub.publish(msg)
 
 
-def main(args: list[str] | None = None, node_type: type[LaserOdomNode] | None = None,
-         prog: str = 'laser_odom_node') -> int:
-    """Run the node until Ctrl-C; return the exit code (2 for bad parameters).
-
-    ``node_type`` and ``prog`` serve the managed node (:mod:`laser_odom.ros.lifecycle`),
-    which starts, fails and stops as this one does.
-    """
-    argv = sys.argv if args is None else args
-    if wants_help(argv):
-        with reader_may_leave(status=0):  # `--help | head`: the reader left; say no more
-            print(usage(), flush=True)
-        return 0
-    try:
-        # The files' layout is judged by the same reader the replay and tools use,
-        # before rcl parses them, so a malformed file gets the same one-line error.
-        params_files = [parse_params_file(path) for path in params_file_arguments(argv)]
-    except ParamsFileError as error:
-        print(f'{prog}: error: {error}', file=sys.stderr)
-        return 2
-    try:
-        rclpy.init(args=args)
-    except Exception as error:  # malformed --ros-args or an unreadable params file
-        message = str(error).strip().splitlines()
-        print(f'{prog}: error: {message[0] if message else error!r}', file=sys.stderr)
-        return 2
-    node = None
-    code = 0
-    try:
-        # Built before the node so that a Ctrl-C at any later moment finds it complete.
-        executor = SingleThreadedExecutor()
-        node = (node_type or LaserOdomNode)(params_files)
-        executor.add_node(node)
-        executor.spin()
-    except StartupError as error:
-        print(f'{prog}: error: {error}', file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+def main(args: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C; return the exit code (2 for bad parameters)."""
+    return run_node(args, LaserOdomNode, 'laser_odom_node', usage)
 
 
 if __name__ == '__main__':

@@ -47,7 +47,8 @@ from laser_odom.io.text_output import reader_may_leave
 from laser_odom.ros.conversions import planar_pose_msg
 from laser_odom.ros.default_params import yaml_value
 from laser_odom.ros.graph import NodeNotFound, Target, wait_for_node
-from laser_odom.tools.ctl_lifecycle import LifecycleClient, TRANSITIONS, wait_for_managed
+from laser_odom.tools.ctl_lifecycle import (
+    LifecycleClient, TRANSITIONS, UnconfiguredWatch, wait_for_managed)
 
 PROG = 'laser_odom_ctl'
 
@@ -140,9 +141,11 @@ class Ctl:
             except NodeNotFound as error:
                 raise CtlError(str(error)) from None
             return
+        target = Target(namespace, args.node_name)
         try:
-            self.target = wait_for_node(self.node, Target(namespace, args.node_name),
-                                        self.spin, **timeout,
+            self.target = wait_for_node(self.node, target,
+                                        UnconfiguredWatch(self.node, target, self.spin).spin,
+                                        **timeout,
                                         say=lambda text: print(f'{PROG}: {text}',
                                                                file=sys.stderr))
         except NodeNotFound as error:

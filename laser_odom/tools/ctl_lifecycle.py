@@ -17,10 +17,14 @@ from lifecycle_msgs.srv import ChangeState, GetAvailableTransitions, GetState
 from rclpy.node import Node
 
 from laser_odom.ros.graph import (
-    absolute, DISCOVERY_TIMEOUT, domain_text, join, NODE_NAME, NodeNotFound, OPTIONS_HINT,
-    STARTUP_TIMEOUT, Target)
+    absolute, DISCOVERY_TIMEOUT, domain_text, find_nodes, join, NODE_NAME, NodeNotFound,
+    OPTIONS_HINT, STARTUP_TIMEOUT, Target)
 
 CHANGE_STATE = 'lifecycle_msgs/srv/ChangeState'
+
+UNCONFIGURED_PATIENCE = 1.0
+"""Seconds a managed node is seen without the topics of a configured one before it is
+said to be unconfigured (discovery brings a node's services and topics one by one)."""
 
 TRANSITIONS = ('configure', 'activate', 'deactivate', 'cleanup', 'shutdown')
 """The transitions a user asks for, by label (as ``ros2 lifecycle set`` takes them)."""
@@ -69,6 +73,39 @@ def wait_for_managed(node: Node, target: Target, spin: Callable[[float], None],
                 f'within {timeout:.0f} s; start one (laser_odom_lifecycle_node --ros-args '
                 f'...), or, if it runs under another name, {OPTIONS_HINT}')
         spin(0.1)
+
+
+class UnconfiguredWatch:
+    """A wait for a ``laser_odom`` node that stops at a managed one not configured yet.
+
+    ``status``, ``get``, ``set`` and ``reset`` look for a node by its topics, which a
+    managed node builds on configure: unconfigured, it is on the graph but would be
+    waited for in vain (then called absent). :meth:`spin` serves the wait and raises
+    :class:`NodeNotFound` saying what to do instead.
+    """
+
+    def __init__(self, node: Node, target: Target, spin: Callable[[float], None]) -> None:
+        """Watch the graph of ``node`` for a managed node that fits ``target``."""
+        self._node, self._target, self._spin = node, target, spin
+        self._since: float | None = None
+
+    def spin(self, seconds: float) -> None:
+        """Spin; raise NodeNotFound once only an unconfigured managed node fits."""
+        self._spin(seconds)
+        if any(self._target.fits(n) for n in find_nodes(self._node)):
+            self._since = None
+            return
+        managed = [fqn for fqn in managed_nodes(self._node) if fits(fqn, self._target)]
+        if len(managed) != 1:
+            self._since = None
+            return
+        self._since = self._since or time.monotonic()
+        if time.monotonic() - self._since >= UNCONFIGURED_PATIENCE:
+            raise NodeNotFound(
+                f'{managed[0]} is a managed node that is not configured: it has no topics '
+                'or services of its own until then; configure and activate it '
+                '(laser_odom_ctl lifecycle configure, then laser_odom_ctl lifecycle activate; '
+                f'or ros2 lifecycle set {managed[0]} configure)')
 
 
 class LifecycleClient:

@@ -43,15 +43,14 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, LaserScan as LaserScanMsg
 from std_srvs.srv import Trigger
 
-from laser_odom.core import se2
 from laser_odom.core.motion.priors import PriorFeed
 from laser_odom.core.scan.laser_scan import LaserScan
 from laser_odom.io.bag_reader import BagTruncatedError
 from laser_odom.ros.conversions import (
-    covariance_3x3, ns_to_stamp, odometry_pose_from_msg, planar_pose_msg, scan_to_msg,
-    stamp_to_ns)
+    covariance_3x3, imu_msg, odometry_pose_from_msg, scan_to_msg, stamp_to_ns,
+    wheel_odometry_msg)
 from laser_odom.ros.graph import (
-    DISCOVERY_TIMEOUT, domain_text, join, NODE_NAME, NodeNotFound, OdometryNode,
+    DISCOVERY_TIMEOUT, domain_text, find_nodes, join, NODE_NAME, NodeNotFound, OdometryNode,
     OPTIONS_HINT, wait_for_node)
 from laser_odom.ros.priors import PRIOR_TOPICS
 from laser_odom.tools.playback import play, RecordedClock
@@ -95,13 +94,8 @@ class _Client:
         odom_topic = target.odom_topic or (found.odom_topic if found else None) or join(
             namespace, 'odom')
         self.scan_pub = self.node.create_publisher(LaserScanMsg, scan_topic, RELIABLE)
-        self.prior_pub = None
-        self.prior_listened = found is not None and prior in found.prior_topics
-        if prior in PRIOR_TOPICS:
-            topic = (found.prior_topics.get(prior) if found else None) or join(
-                namespace, PRIOR_TOPICS[prior])
-            self.prior_pub = self.node.create_publisher(
-                Odometry if prior == 'odom' else Imu, topic, RELIABLE)
+        self.prior, self.found, self.prior_pub = prior, found, None
+        self._open_prior(found, join(namespace, PRIOR_TOPICS.get(prior, '')))
         self.odometry: dict[int, tuple[Odometry, float]] = {}
         self.odom_sub = self.node.create_subscription(
             Odometry, odom_topic, self._on_odometry, RELIABLE)
@@ -135,6 +129,26 @@ class _Client:
             if fallback and str(error).startswith('no laser_odom node'):
                 return None
             raise ReplayError(f'--live: {error}') from None
+
+    def _open_prior(self, found: OdometryNode | None, guessed: str) -> None:
+        """Publish the ``--prior`` samples where ``found`` reads them, else on ``guessed``."""
+        self.prior_listened = found is not None and self.prior in found.prior_topics
+        if self.prior not in PRIOR_TOPICS:
+            return
+        topic = found.prior_topics.get(self.prior) if self.prior_listened else guessed
+        if self.prior_pub is not None:
+            if self.prior_pub.topic_name == topic:
+                return
+            self.node.destroy_publisher(self.prior_pub)
+        self.prior_pub = self.node.create_publisher(
+            Odometry if self.prior == 'odom' else Imu, topic, RELIABLE)
+
+    def _adopt(self) -> None:
+        """Take the node as the graph now shows it (seen late, or its prior topic seen late)."""
+        fitting = [n for n in find_nodes(self.node) if self.target.fits(n) and n.ready]
+        if len(fitting) == 1:
+            self.found, self.node_name = fitting[0], fitting[0].name
+            self._open_prior(self.found, getattr(self.prior_pub, 'topic_name', ''))
 
     def close(self) -> None:
         """Destroy the node and shut the context down."""
@@ -177,9 +191,13 @@ class _Client:
         """Wait until the node's scan subscription and odometry publisher are matched.
 
         When the node listens to the prior's topic, its subscription is waited for too:
-        the first prior messages would otherwise be lost while it is being matched.
+        the first prior messages would otherwise be lost while it is being matched. The
+        graph fills in meanwhile: a node not seen when looked for, or its (remapped)
+        prior topic, is taken as it appears (:meth:`_adopt`).
         """
         def matched() -> bool:
+            if self.found is None or (self.prior in PRIOR_TOPICS and not self.prior_listened):
+                self._adopt()
             return (self.scan_pub.get_subscription_count() > 0
                     and self.odom_sub.get_publisher_count() > 0
                     and (not self.prior_listened or self.prior_pub.get_subscription_count() > 0))
@@ -193,6 +211,7 @@ class _Client:
                 f'{self.odom_sub.topic_name} on {domain_text()} within '
                 f'{within:g} s; start laser_odom_node, or {OPTIONS_HINT}')
         self.spin_until(lambda: False, 0.3)  # let the node's side of the match settle
+        self.spin_until(matched, 1.0)  # a look more: a prior topic seen late is matched too
 
     def reset_node(self) -> bool:
         """Call the node's ``~/reset`` so the replay starts from the origin."""
@@ -230,20 +249,11 @@ class _Client:
             return
         for i in indices:
             if feed.odometry_samples is not None:
-                msg = Odometry()
-                msg.header.stamp = ns_to_stamp(int(feed.odometry_samples.stamps_ns[i]))
-                msg.pose.pose = planar_pose_msg(feed.odometry_samples.poses[i])
+                odometry = feed.odometry_samples
+                msg = wheel_odometry_msg(int(odometry.stamps_ns[i]), odometry.poses[i])
             else:
-                samples = feed.imu_samples
-                msg = Imu()
-                msg.header.stamp = ns_to_stamp(int(samples.stamps_ns[i]))
-                if np.isfinite(samples.yaw[i]):
-                    x, y, z, w = se2.yaw_to_quaternion(float(samples.yaw[i]))
-                    msg.orientation.x, msg.orientation.y = x, y
-                    msg.orientation.z, msg.orientation.w = z, w
-                else:
-                    msg.orientation_covariance[0] = -1.0
-                msg.angular_velocity.z = float(samples.yaw_rate[i])
+                imu = feed.imu_samples
+                msg = imu_msg(int(imu.stamps_ns[i]), float(imu.yaw[i]), float(imu.yaw_rate[i]))
             self.prior_pub.publish(msg)
 
 
@@ -280,15 +290,6 @@ def _run_lock_step(client: _Client, scans: Iterator[LaserScan], feed: PriorFeed,
         _progress(record, args)
 
 
-def _prior_stamps(feed: PriorFeed) -> np.ndarray:
-    """Return the stamps of the prior samples to publish (none without odom/imu prior)."""
-    if feed.odometry_samples is not None:
-        return feed.odometry_samples.stamps_ns
-    if feed.imu_samples is not None:
-        return feed.imu_samples.stamps_ns
-    return np.zeros(0, dtype=np.int64)
-
-
 def _timeline(scans: Iterator[LaserScan], feed: PriorFeed, client: _Client,
               record: ReplayRecord, send: Callable[[int, LaserScanMsg], None],
               clock: RecordedClock) -> Iterator[tuple[float, Callable[[], None]]]:
@@ -297,7 +298,7 @@ def _timeline(scans: Iterator[LaserScan], feed: PriorFeed, client: _Client,
     Before each scan come the prior samples stamped up to it, each at its own time;
     of those older than the first scan only the newest is sent (the node needs no more).
     """
-    stamps = _prior_stamps(feed)
+    stamps = feed.stamps()
     first: int | None = None
     for scan in scans:
         end = int(np.searchsorted(stamps, scan.stamp_ns, side='right'))

@@ -176,14 +176,16 @@ def _objective_name(args: argparse.Namespace, bags: list[RecordedBag], warn: Any
     return objective
 
 
-def tuned_yaml(values: dict[str, Any], summary: StudySummary, header: list[str]) -> str:
+def tuned_yaml(values: dict[str, Any], summary: StudySummary, header: list[str],
+               start: str = 'defaults') -> str:
     """Return the node's params file of ``values``: only what differs from the defaults.
 
-    Each line says in a comment what it was and the score it reached; matcher settings
-    are nested under ``<matcher>:`` as in ``config/default.yaml``.
+    Each line says in a comment what it was and the score it reached, beside the
+    score of the ``start`` (the defaults, or the ``--params-file`` trial 0 ran with);
+    matcher settings are nested under ``<matcher>:`` as in ``config/default.yaml``.
     """
     defaults = {spec.name: spec.default for spec in parameter_specs()}
-    score = f'score {summary.best:.5g} (defaults {summary.default:.5g})'
+    score = f'score {summary.best:.5g} ({start} {summary.default:.5g})'
     matcher = yaml_value(values['matcher'])
     lines = [f'# {line}' for line in header] + [
         '/**:', '  ros__parameters:', f'    matcher: {matcher}  # best matcher: {score}']
@@ -279,7 +281,8 @@ def tune(args: argparse.Namespace) -> int:
                   f'{args.study_name}-{winner.matcher}, {winner.total} trials']
         # The files first: a reader leaving the printed table loses nothing.
         write_output(args.output, tuned_yaml(winner.best_values or {'matcher': winner.matcher},
-                                             winner, header))
+                                             winner, header, 'defaults' if args.params_file
+                                             is None else 'start'))
         if args.plot is not None:
             plot(args.plot, job, storage, bags, summaries)
         print('\n'.join(table_lines(summaries, objective, start) + failure_lines(summaries)))

@@ -204,8 +204,8 @@ class PriorFeed:
         self.imu_samples = imu if prior == 'imu' else None
         self._next = 0
 
-    def _stamps(self) -> np.ndarray:
-        """Return the stamps of the active prior's samples."""
+    def stamps(self) -> np.ndarray:
+        """Return the stamps of the active prior's samples (none without odom/imu prior)."""
         if self.odometry_samples is not None:
             return self.odometry_samples.stamps_ns
         if self.imu_samples is not None:
@@ -214,7 +214,7 @@ class PriorFeed:
 
     def advance(self, stamp_ns: int) -> range:
         """Buffer the samples up to ``stamp_ns`` and the first one after; return their indices."""
-        stamps = self._stamps()
+        stamps = self.stamps()
         end = min(int(np.searchsorted(stamps, stamp_ns, side='right')) + 1, len(stamps))
         new = range(self._next, max(end, self._next))
         for i in new:

@@ -1,0 +1,69 @@
+"""A node's process: help, parameter files, rclpy, spin, exit code.
+
+``laser_odom_node`` and ``laser_odom_lifecycle_node`` start, fail and stop the same way:
+``--help`` prints the usage and starts nothing; a malformed ``--params-file`` or
+``--ros-args`` is a one-line error (exit code 2) before the node exists, as are bad
+parameter values (:class:`laser_odom.ros.live.StartupError`); Ctrl-C ends the spin
+quietly (exit code 0).
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable, Sequence, TYPE_CHECKING
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from laser_odom.io.params_file import ParamsFile, ParamsFileError, parse_params_file
+from laser_odom.io.text_output import reader_may_leave
+from laser_odom.ros.live import StartupError
+from laser_odom.ros.usage import params_file_arguments, wants_help
+
+if TYPE_CHECKING:
+    from rclpy.node import Node
+
+
+def run_node(args: list[str] | None, node_type: Callable[[Sequence[ParamsFile]], 'Node'],
+             prog: str, help_text: Callable[[], str]) -> int:
+    """Run ``node_type(params_files)`` until Ctrl-C; return the exit code (2: bad input).
+
+    ``args`` is the command line (``sys.argv`` when None), ``prog`` names the program
+    in its errors and ``help_text()`` is what ``--help`` prints.
+    """
+    argv = sys.argv if args is None else args
+    if wants_help(argv):
+        with reader_may_leave(status=0):  # `--help | head`: the reader left; say no more
+            print(help_text(), flush=True)
+        return 0
+    try:
+        # The files' layout is judged by the same reader the replay and tools use,
+        # before rcl parses them, so a malformed file gets the same one-line error.
+        params_files = [parse_params_file(path) for path in params_file_arguments(argv)]
+    except ParamsFileError as error:
+        print(f'{prog}: error: {error}', file=sys.stderr)
+        return 2
+    try:
+        rclpy.init(args=args)
+    except Exception as error:  # malformed --ros-args or an unreadable params file
+        message = str(error).strip().splitlines()
+        print(f'{prog}: error: {message[0] if message else error!r}', file=sys.stderr)
+        return 2
+    node = None
+    code = 0
+    try:
+        # Built before the node so that a Ctrl-C at any later moment finds it complete.
+        executor = SingleThreadedExecutor()
+        node = node_type(params_files)
+        executor.add_node(node)
+        executor.spin()
+    except StartupError as error:
+        print(f'{prog}: error: {error}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
