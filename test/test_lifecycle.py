@@ -227,7 +227,8 @@ def test_cleanup_keeps_the_sim_time_clock_of_a_managed_node(peer):
         stamps = [stamp_to_ns(msg.header.stamp) for _, msg in peer.diagnostics
                   if any(s.name.startswith(namespace[1:]) for s in msg.status)]
         assert stamps and all(clock.start_ns < t <= clock.now_ns for t in stamps)
-        assert process.interrupt() == 0
+        code = process.interrupt()
+        assert code == 0, process.output()
     finally:
         process.close()
     assert 'Traceback' not in process.output() and '[ERROR]' not in process.output()
