@@ -134,6 +134,10 @@ def sim_bag(tmp_path_factory) -> Path:
     return bag
 
 
+# Rerun at most twice: once in a full suite on the busy machine the peer heard none of
+# the replay's /clock messages though the node did (DDS discovery); a replay that
+# publishes no /clock still fails every time.
+@pytest.mark.flaky(reruns=2)
 def test_live_replay_with_clock_drives_a_sim_time_node(peer, node, clocks, sim_bag,
                                                        tmp_path, capsys):
     offline = tmp_path / 'offline.tum'
