@@ -300,15 +300,16 @@ def main_offline(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print('laser_odom_bench: interrupted', file=sys.stderr)
         return 130
+    spreads = spread_rows(rows)
     if args.json is not None:  # first: a reader leaving the printed table loses nothing
         payload = {**provenance(), 'rows': [row.as_dict() for row in rows],
-                   'spread': [row.as_dict() for row in spread_rows(rows)],
+                   'spread': [row.as_dict() for row in spreads],
                    'search': [row.as_dict() for row in searches]}
         write_text_atomically(args.json, json.dumps(payload, indent=2) + '\n')
     print(machine_line())
     print(format_table(rows))
     if args.perturb:
-        print(format_spread_table(spread_rows(rows)))
+        print(format_spread_table(spreads))
     if args.nees:
         print(format_nees_table(rows))
     if searches:

@@ -5,18 +5,19 @@ the previous pose (:mod:`laser_odom.core.registration.local_map.reference`). The
 reference as long as it describes the scene; where it does not (the scene changed,
 the map went wrong, the scan sees what the map dropped) the previous scan still does.
 Both share the previous pose's frame, so one guess serves both and the result is the
-step either way. A scan that disagrees with the map and with the previous scan is
-evidence that the step failed: the global search runs against both.
+step either way.
 
 Without a trusted prediction (``prior: none``, the first match, after a gap or a
-rejection) the step may be large, and the map seen from the previous pose is a poor
-reference to search in: a virtual scan holds one point per cell a bearing meets (a
-near wall gives fewer points than beams), and a map just restarted holds one scan
-seen from afar. Measured on fr079 at every 10th scan (steps of 0.5-1 m), the search
-against the view found the wrong pose on about a quarter of the steps where the
-search against the previous scan found the right one. So the step is searched for
-against the previous scan, as scan to scan does, and the map then refines it from
-there like a trusted prediction: the map sharpens the step, the scan finds it.
+rejection), with one in doubt (:mod:`laser_odom.core.registration.doubt`), or when
+neither reference gives a clean match from it, the step may be large, and the map
+seen from the previous pose is a poor reference to search in: a virtual scan holds one
+point per cell a bearing meets (a near wall gives fewer points than beams), and a map
+just restarted holds one scan seen from afar. Measured on fr079 at every 10th scan
+(steps of 0.5-1 m), the search against the view found the wrong pose on about a
+quarter of the steps where the search against the previous scan found the right one.
+So the step is searched for against the previous scan, as scan to scan does, and the
+map then refines it from there like a trusted prediction: the map sharpens the step,
+the scan finds it.
 """
 
 from __future__ import annotations
@@ -129,17 +130,11 @@ class MapRegistrar:
                         return self._fallback(previous, *against_scan)
                 return self._register_doubted(matcher, registrar, view, previous, current,
                                               guess, config)
+        # No previous scan (the map just started): the map's view is all there is.
         registration = registrar.register(matcher, view, current, guess, config, untrusted,
                                           local)
-        verdict = judge_match(registration, guess, config, scale)
-        if previous is None or clean_match(registration, verdict):
-            return JudgedMatch(view, registrar, registration, verdict)
-        second = self.scan_registrar.register(matcher, previous, current, guess, config,
-                                              untrusted)
-        second_verdict = judge_match(second, guess, config, scale)
-        if match_rank(second, second_verdict) > match_rank(registration, verdict):
-            return self._fallback(previous, second, second_verdict)
-        return JudgedMatch(view, registrar, registration, verdict)
+        return JudgedMatch(view, registrar, registration,
+                           judge_match(registration, guess, config, scale))
 
     def _register_doubted(self, matcher: ScanMatcher, registrar: Registrar,
                           view: ScanPoints, previous: ScanPoints, current: ScanPoints,
