@@ -70,6 +70,10 @@ class MatcherConfig:
         'integrated pose when matching against the map: the map holds the heading a '
         'scan-to-scan match would lose, so it walks less than covariance_heading_walk; '
         'fitted to the real logs in map mode (0 for a simulated scanner).', 0.0, 1.0)
+    map_surface_refine: bool = param(
+        False, "reference: local_map - refine a clean match against the map's view once "
+        "more on the map's own cell surfaces (no view in between; on for imls, whose ATE "
+        'it lowers on every real log).')
     map_covariance_scale: float = param(
         1.6, 'reference: local_map - further factor on the covariance of a match against the '
         "map (the view's surfaces are averages, not one scan's points; calibrated per matcher "

@@ -278,6 +278,9 @@ class OdometryPipeline:
                             f't={stamp_ns * 1e-9:.3f}')
         if current.times is not None and judged.verdict.status != 'rejected':
             current, judged = self._deskew_again(current, sweep_dt, judged)
+        if self.map_registrar is not None:
+            judged = self.map_registrar.refine_on_surfaces(self.matcher, current, judged,
+                                                           self.keyframe_pose)
         registration, verdict = judged.registration, judged.verdict
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
         step_covariance, model = step_error(judged.verdict.status, judged.verdict.covariance,

@@ -22,6 +22,7 @@ the scan finds it.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -135,6 +136,27 @@ class MapRegistrar:
                                           local)
         return JudgedMatch(view, registrar, registration,
                            judge_match(registration, guess, config, scale))
+
+    def refine_on_surfaces(self, matcher: ScanMatcher, current: ScanPoints,
+                           judged: JudgedMatch, view_pose: se2.Pose) -> JudgedMatch:
+        """Refine a clean map match on the map's own surfaces (``map_surface_refine``).
+
+        A match against the map's view (from ``view_pose``) that was judged
+        ``matched`` is refined once more against the cells themselves
+        (:mod:`.local_map.surface_fit`); its covariance and verdict stand. Degenerate,
+        rejected and previous-scan matches are left as they are: their weak direction
+        or their reference is not the map's to correct. Measured with ``imls`` on
+        fr079, MIT CSAIL and Intel (median of 5 copies with 1 mm range noise): ATE
+        0.31 / 0.64 / 0.22 m -> see docs/benchmark.md.
+        """
+        verdict = judged.verdict
+        if not (matcher.config.map_surface_refine and judged.from_map
+                and verdict.status == 'matched'):
+            return judged
+        step = self.map.refine_step(current.points, view_pose, verdict.pose)
+        if step is None:
+            return judged
+        return judged._replace(verdict=replace(verdict, pose=step))
 
     def _register_doubted(self, matcher: ScanMatcher, registrar: Registrar,
                           view: ScanPoints, previous: ScanPoints, current: ScanPoints,

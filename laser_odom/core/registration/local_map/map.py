@@ -25,6 +25,7 @@ from laser_odom.core import se2
 from laser_odom.core.registration.local_map.cells import (
     add_points, ALIVE, cell_key, EMPTY, find_cell, FLOAT_COLUMNS, INT_COLUMNS, LAST_SEEN, MEAN_X,
     MEAN_Y, refresh_blocks, remove_cells, stale_cells, WEIGHT)
+from laser_odom.core.registration.local_map.surface_fit import fit_to_surfaces
 from laser_odom.core.registration.local_map.view import ranges_by_bin, render_view, seen_through
 from laser_odom.core.scan.laser_scan import ScanPoints
 
@@ -151,6 +152,15 @@ class LocalMap:
         return ScanPoints(points=np.ascontiguousarray(rows[:, :2]),
                           beam_index=rows[:, 3].astype(np.int64), ranges=rows[:, 2].copy(),
                           stamp_ns=stamp_ns, virtual=True)
+
+    def fit_to_surfaces(self, points: np.ndarray, pose: se2.Pose) -> tuple[np.ndarray, int]:
+        """Refine ``pose`` of base-frame ``points`` on the cells' surfaces; pose and pairs.
+
+        :func:`.local_map.surface_fit.fit_to_surfaces`.
+        """
+        return fit_to_surfaces(points, np.asarray(pose, dtype=float), self._floats,
+                               self._ints, self._slot_keys, self._slot_cells,
+                               1.0 / self.geometry.resolution)
 
     def _refresh(self, changed: np.ndarray) -> None:
         """Pool the block moments around the changed cells again."""

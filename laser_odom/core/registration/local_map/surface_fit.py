@@ -1,0 +1,154 @@
+"""The last refinement of a map match: the scan's points on the map's own surfaces.
+
+A match against the map sees the map as a virtual scan from the previous pose
+(:mod:`laser_odom.core.registration.local_map.view`): one point per bearing bin, where
+the bin's ray meets the pooled surface of the cells it crosses. That is what lets every
+matcher take the map as it takes a scan, but it is a resampling: a wall seen at a
+grazing angle, a corner, a far wall whose bins are wider than its cells, all lose
+detail. Here the matched pose is refined once more against the cells themselves, with
+no view in between: each point of the scan is paired with the nearest cell mean among
+the 3x3 cells around it, and its residual is the distance to that cell's block
+surface, the total-least-squares line of the block's pooled moments
+(:mod:`laser_odom.core.registration.local_map.cells`). This is the scan-to-model
+metric of IMLS-SLAM (Deschaud 2018, Sec. III: points against the model's surfaces,
+not against another scan) and NICP's point-to-plane term, and, like hector_mapping's
+matcher (Kohlbrecher et al. 2011, Sec. IV-A), the whole map's memory answers, not only
+what the previous pose could see.
+
+The pose is found by Gauss-Newton on the Huber-weighted point-to-line residuals
+``r_i = n_i . (R p_i + t - m_i)`` (Jacobian ``[n_x, n_y, n . (R' p_i)]``, with ``R'``
+the derivative of the rotation), from the matcher's pose, which lies well inside the
+basin: the refinement corrects centimetres and tenths of a degree, not the step.
+Curved or cluttered blocks (curvature above :data:`MAX_CURVATURE`) have no line and
+pair nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from laser_odom.core.registration.local_map.cells import (
+    ALIVE, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, find_cell,
+    KEY_OFFSET, MEAN_X, MEAN_Y)
+
+MAX_CURVATURE = 0.1
+"""A block whose smaller scatter eigenvalue is more than this share of the sum
+(Pauly et al. 2002) is no line to measure a distance to."""
+
+HUBER_SIGMA = 0.05
+"""Residuals beyond this [m] count linearly (Huber): a point on something the map
+does not hold pulls with a bounded force."""
+
+ITERATIONS = 10
+"""Gauss-Newton iterations at most (it converges in three to five from a match)."""
+
+CONVERGED = (1e-5, 1e-6)
+"""An iteration that moves the pose less than this [m, rad] ends the refinement."""
+
+MIN_PAIRS = 20
+"""With fewer paired points the refinement does not run: the matcher's pose stands."""
+
+
+def fit_to_surfaces(points: np.ndarray, pose: np.ndarray, floats: np.ndarray,
+                    ints: np.ndarray, slot_keys: np.ndarray, slot_cells: np.ndarray,
+                    inverse_resolution: float) -> tuple[np.ndarray, int]:
+    """Refine ``pose`` (base in the map frame) of base-frame ``points`` on the cells.
+
+    Returns the refined pose and how many points were paired in its last iteration;
+    the given pose, unchanged, when fewer than :data:`MIN_PAIRS` could be.
+    """
+    return _fit(np.ascontiguousarray(points, dtype=float), np.asarray(pose, dtype=float),
+                floats, ints, slot_keys, slot_cells, float(inverse_resolution), ITERATIONS,
+                HUBER_SIGMA, MAX_CURVATURE, MIN_PAIRS, CONVERGED[0], CONVERGED[1])
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit(points: np.ndarray, pose: np.ndarray, floats: np.ndarray, ints: np.ndarray,
+         slot_keys: np.ndarray, slot_cells: np.ndarray, inverse_resolution: float,
+         iterations: int, sigma: float, max_curvature: float, min_pairs: int,
+         converged_linear: float, converged_angular: float) -> tuple[np.ndarray, int]:
+    """Gauss-Newton on the Huber-weighted point-to-line residuals (the module's equation)."""
+    x, y, theta = pose[0], pose[1], pose[2]
+    pairs = 0
+    for _ in range(iterations):
+        cos_t, sin_t = math.cos(theta), math.sin(theta)
+        hessian = np.zeros((3, 3))
+        gradient = np.zeros(3)
+        pairs = 0
+        for k in range(points.shape[0]):
+            # The point in the map frame, and its lever arm about the base (R p).
+            ax = cos_t * points[k, 0] - sin_t * points[k, 1]
+            ay = sin_t * points[k, 0] + cos_t * points[k, 1]
+            wx, wy = ax + x, ay + y
+            cell = _nearest_cell(wx, wy, floats, ints, slot_keys, slot_cells,
+                                 inverse_resolution)
+            if cell < 0:
+                continue
+            line = _block_line(cell, floats, max_curvature)
+            if line[0] == 0.0 and line[1] == 0.0:
+                continue
+            nx, ny = line[0], line[1]
+            residual = nx * (wx - floats[cell, BLOCK_X]) + ny * (wy - floats[cell, BLOCK_Y])
+            magnitude = abs(residual)
+            weight = 1.0 if magnitude <= sigma else sigma / magnitude
+            jacobian = (nx, ny, nx * -ay + ny * ax)
+            for a in range(3):
+                gradient[a] += weight * jacobian[a] * residual
+                for b in range(3):
+                    hessian[a, b] += weight * jacobian[a] * jacobian[b]
+            pairs += 1
+        if pairs < min_pairs:
+            return pose.copy(), pairs
+        for a in range(3):
+            hessian[a, a] += 1e-9
+        delta = np.linalg.solve(hessian, -gradient)
+        x, y, theta = x + delta[0], y + delta[1], theta + delta[2]
+        if (abs(delta[0]) < converged_linear and abs(delta[1]) < converged_linear
+                and abs(delta[2]) < converged_angular):
+            break
+    return np.array([x, y, theta]), pairs
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _nearest_cell(x: float, y: float, floats: np.ndarray, ints: np.ndarray,
+                  slot_keys: np.ndarray, slot_cells: np.ndarray,
+                  inverse_resolution: float) -> int:
+    """Return the cell of the 3x3 around ``(x, y)`` whose mean is nearest, -1 if none."""
+    ix = np.int64(math.floor(x * inverse_resolution)) + KEY_OFFSET
+    iy = np.int64(math.floor(y * inverse_resolution)) + KEY_OFFSET
+    best, best_distance = -1, math.inf
+    for ox in range(-1, 2):
+        for oy in range(-1, 2):
+            cell = find_cell(slot_keys, slot_cells, ((ix + ox) << 32) | (iy + oy))
+            if cell < 0 or ints[cell, ALIVE] == 0 or floats[cell, BLOCK_WEIGHT] <= 0.0:
+                continue
+            dx, dy = x - floats[cell, MEAN_X], y - floats[cell, MEAN_Y]
+            distance = dx * dx + dy * dy
+            if distance < best_distance:
+                best, best_distance = cell, distance
+    return best
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _block_line(cell: int, floats: np.ndarray, max_curvature: float) -> tuple[float, float]:
+    """Return the unit normal of the cell's block line, (0, 0) when it is no line."""
+    weight = floats[cell, BLOCK_WEIGHT]
+    sxx = floats[cell, BLOCK_XX] / weight
+    sxy = floats[cell, BLOCK_XY] / weight
+    syy = floats[cell, BLOCK_YY] / weight
+    half_trace = 0.5 * (sxx + syy)
+    spread = math.sqrt(max(half_trace * half_trace - (sxx * syy - sxy * sxy), 0.0))
+    smaller = half_trace - spread
+    if half_trace <= 0.0 or smaller / (2.0 * half_trace) > max_curvature:
+        return 0.0, 0.0
+    if abs(sxy) > 1e-12:
+        nx, ny = sxy, smaller - sxx
+    elif sxx < syy:
+        nx, ny = 1.0, 0.0
+    else:
+        nx, ny = 0.0, 1.0
+    norm = math.hypot(nx, ny)
+    return nx / norm, ny / norm

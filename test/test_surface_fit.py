@@ -1,0 +1,51 @@
+"""The map match's last refinement on the cells' own surfaces (local_map.surface_fit)."""
+
+import math
+
+import numpy as np
+from test_local_map import BIN, geometry, ROOM, scan_points, SENSOR
+
+from laser_odom.core import se2
+from laser_odom.core.registration.local_map.map import LocalMap
+from laser_odom.core.registration.local_map.surface_fit import MIN_PAIRS
+
+
+def room_map(scans: int = 10) -> LocalMap:
+    """Return a map of the room from ``scans`` noisy scans taken at the origin."""
+    local_map = LocalMap(geometry())
+    for seed in range(scans):
+        local_map.insert(scan_points(ROOM, se2.pose(), noise=0.01, seed=seed), se2.pose(),
+                         SENSOR, BIN)
+    return local_map
+
+
+def test_a_pose_a_few_centimetres_off_is_refined_onto_the_walls():
+    local_map = room_map()
+    truth = se2.pose(0.4, -0.3, 0.25)
+    points = scan_points(ROOM, truth, noise=0.01, seed=77)
+    for offset in ([0.03, -0.02, math.radians(0.8)], [-0.04, 0.03, math.radians(-1.2)]):
+        start = np.asarray(truth) + offset
+        refined, pairs = local_map.fit_to_surfaces(points, start)
+        assert pairs > 0.8 * len(points)
+        error = se2.relative(truth, refined)
+        assert math.hypot(error[0], error[1]) < 0.004
+        assert abs(math.degrees(error[2])) < 0.05
+
+
+def test_the_correct_pose_stays_where_it_is():
+    local_map = room_map()
+    truth = se2.pose(-0.5, 0.6, -0.4)
+    refined, _ = local_map.fit_to_surfaces(scan_points(ROOM, truth, noise=0.01, seed=5),
+                                           truth)
+    error = se2.relative(truth, refined)
+    assert math.hypot(error[0], error[1]) < 0.004
+    assert abs(math.degrees(error[2])) < 0.05
+
+
+def test_points_far_from_the_map_leave_the_pose_as_it_was():
+    local_map = room_map(1)
+    far = scan_points(ROOM, se2.pose(), noise=0.01, seed=3) + 40.0  # nowhere near a cell
+    start = se2.pose(0.1, 0.2, 0.3)
+    refined, pairs = local_map.fit_to_surfaces(far, start)
+    assert pairs < MIN_PAIRS
+    np.testing.assert_array_equal(refined, start)
