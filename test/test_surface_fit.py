@@ -3,10 +3,11 @@
 import math
 
 import numpy as np
-from test_local_map import BIN, geometry, ROOM, scan_points, SENSOR
+from test_local_map import _reference, _scan, BIN, geometry, ROOM, scan_points, SENSOR
 
 from laser_odom.core import se2
 from laser_odom.core.registration.local_map.map import LocalMap
+from laser_odom.core.registration.local_map.reference import MAX_SURFACE_TURN
 from laser_odom.core.registration.local_map.surface_fit import MIN_PAIRS
 
 
@@ -49,3 +50,20 @@ def test_points_far_from_the_map_leave_the_pose_as_it_was():
     refined, pairs = local_map.fit_to_surfaces(far, start)
     assert pairs < MIN_PAIRS
     np.testing.assert_array_equal(refined, start)
+
+
+def test_the_map_refines_a_step_by_less_than_a_cell_and_refuses_a_larger_move():
+    """A move beyond a cell changed the pairing: another minimum, and the step stands."""
+    reference = _reference()
+    reference.restart(_scan(ROOM, se2.pose()), se2.pose())
+    view_pose = se2.pose(0.1, 0.0, 0.05)
+    truth = se2.pose(0.35, -0.2, 0.2)
+    true_step = se2.relative(view_pose, truth)
+    points = scan_points(ROOM, truth, noise=0.005, seed=11)
+    near = reference.refine_step(points, view_pose, np.asarray(true_step) + [0.02, 0.0, 0.005])
+    error = se2.relative(true_step, near)
+    assert math.hypot(error[0], error[1]) < 0.005 and abs(error[2]) < math.radians(0.1)
+    far = np.asarray(true_step) + [0.0, 0.09, 0.0]  # the fit would move it 9 cm
+    assert reference.refine_step(points, view_pose, far) is None
+    turned = np.asarray(true_step) + [0.0, 0.0, MAX_SURFACE_TURN * 1.5]
+    assert reference.refine_step(points, view_pose, turned) is None
