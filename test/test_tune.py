@@ -19,7 +19,7 @@ from laser_odom.core.configuration.node import check_values, parameter_specs, se
 from laser_odom.core.simulation import simulate
 from laser_odom.core.simulation.odometry import OdometryNoise
 from laser_odom.core.tuning import objective as objective_module
-from laser_odom.core.tuning.objective import FAILED_TRIAL_SCORE, run_trial
+from laser_odom.core.tuning.objective import FAILED_TRIAL_SCORE, laser_failure, run_trial
 from laser_odom.core.tuning.space import matcher_space, read_space_file, SpaceError, suggest
 from laser_odom.io.bag_writer import write_bag
 from laser_odom.io.params_file import read_params_files
@@ -392,9 +392,11 @@ def test_a_tune_never_recommends_a_run_of_the_prior_alone(good_odom, tmp_path, c
                  '--space', str(space), '--output', str(out), '--quiet']) == 0
     printed = capsys.readouterr().out
     default, best, trials, pruned, failed = _table(printed)['nicp'][:5]
-    # Only the default trial (40 iterations) ran on the laser: it is the best.
+    # Only the default trial (40 iterations) ran on the laser in full: it is the best.
+    # With one iteration most trials fail (their matches rejected, or none constraining
+    # every direction); one whose global search ran on every scan may still match.
     assert float(best) == float(default) and 0.0 < float(best) < 0.01
-    assert int(failed) + int(pruned) == 5 and int(failed) >= 1
+    assert int(failed) + int(pruned) >= 4 and int(failed) >= 1
     assert 'nicp.max_iterations' not in read_params_files([out]).values
     lines = printed.splitlines()
     failure = next(line for line in lines if line.startswith('nicp: '))
@@ -435,3 +437,13 @@ def test_the_tuned_file_scores_against_the_start_file_it_began_from(good_odom, t
     text = out.read_text()
     assert f'(start {score})' in text and '(defaults ' not in text
     assert read_params_files([out]).values['max_scan_gap'] == 2.0
+
+
+def test_a_run_of_degenerate_and_rejected_matches_is_not_the_lasers():
+    """Degenerate matches take the prediction where the scan is blind: none fully the laser's."""
+    counts = {'processed': 100, 'matched': 0, 'degenerate': 60, 'rejected': 39}
+    why = laser_failure(counts, 'bag')
+    assert why.startswith('laser matches constrained every direction on only 0 of 99 scans')
+    assert laser_failure({**counts, 'matched': 20, 'degenerate': 40}, 'bag') is None
+    assert laser_failure({**counts, 'matched': 40, 'degenerate': 0, 'rejected': 59},
+                         'bag').startswith('laser matches rejected on 59 of 99 scans')
