@@ -190,10 +190,15 @@ class Registrar:
             doubt = '' if failure or not verify else self.doubt.doubt(guess,
                                                                       config.acceptance)
             if (failure or doubt) and mode == 'recover':
-                # The prediction failed or is in doubt: not trusted to break ties among
-                # poses that fit alike, nor where the scan is blind (its turn; as for the
-                # last step's motion, :func:`.recovery.choose`, :func:`.judge_match`).
-                # fr079 every 10th scan 0.1 s apart, failed: 7/10/9 -> 5/7/7 (none 5/8/7).
+                # Its match failed or the prediction is in doubt: the search's choice
+                # among poses that fit alike is not the one nearest the prediction but,
+                # as without one, the one nearest the last step's motion
+                # (:func:`.recovery.choose`). Anchored at a wrong prediction it kept the
+                # wrong match (fr079 every 10th scan 0.1 s apart, plicp / nicp / imls:
+                # 7 / 10 / 9 failed steps, 5 / 8 / 7 with prior: none; now 5 / 7 / 7).
+                # Nor is it trusted where the scan is blind: its translation stands in
+                # there, the turn is the match's, as for the last step's motion
+                # (:func:`.acceptance.judge_match`).
                 registration = self._search(matcher, reference, current, guess, config,
                                             'local_failed' if failure else 'doubtful',
                                             local, failure, False,
