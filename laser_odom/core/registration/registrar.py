@@ -190,20 +190,9 @@ class Registrar:
             doubt = '' if failure or not verify else self.doubt.doubt(guess,
                                                                       config.acceptance)
             if (failure or doubt) and mode == 'recover':
-                # Its match failed or the prediction is in doubt: the search's choice
-                # among poses that fit alike is not the one nearest the prediction but,
-                # as without one, the one nearest the last step's motion
-                # (:func:`.recovery.choose`). Anchored at a wrong prediction it kept the
-                # wrong match (fr079 every 10th scan 0.1 s apart, plicp / nicp / imls:
-                # 7 / 10 / 9 failed steps, 5 / 8 / 7 with prior: none; now 5 / 7 / 7).
-                # Nor is it trusted where the scan is blind: its translation stands in
-                # there, the turn is the match's, as for the last step's motion
-                # (:func:`.acceptance.judge_match`).
                 registration = self._search(matcher, reference, current, guess, config,
                                             'local_failed' if failure else 'doubtful',
-                                            local, failure, False,
-                                            self.predict(guess, 'doubtful', reference,
-                                                         current))
+                                            local, failure, True, prediction)
                 registration.failure_detail = (
                     self.describe_failure(failure, local, guess, config) if failure
                     else doubt)
