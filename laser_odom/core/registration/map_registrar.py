@@ -147,7 +147,8 @@ class MapRegistrar:
         rejected and previous-scan matches are left as they are: their weak direction
         or their reference is not the map's to correct. Measured with ``imls`` on
         fr079, MIT CSAIL and Intel (median of 5 copies with 1 mm range noise): ATE
-        0.31 / 0.64 / 0.22 m -> see docs/benchmark.md.
+        0.31 / 0.64 / 0.22 m -> 0.16 / 0.30 / 0.15 m; with ``plicp`` and ``nicp`` it
+        added silent failures on fr079 and drift on Intel (off for them).
         """
         verdict = judged.verdict
         if not (matcher.config.map_surface_refine and judged.from_map
