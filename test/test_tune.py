@@ -447,3 +447,27 @@ def test_a_run_of_degenerate_and_rejected_matches_is_not_the_lasers():
     assert laser_failure({**counts, 'matched': 20, 'degenerate': 40}, 'bag') is None
     assert laser_failure({**counts, 'matched': 40, 'degenerate': 0, 'rejected': 59},
                          'bag').startswith('laser matches rejected on 59 of 99 scans')
+
+
+def test_a_trial_another_process_reported_first_is_replaced_not_a_traceback():
+    """Optuna issue 4621: two processes on one new SQLite study may take one queued trial."""
+    from laser_odom.core.tuning.study import _optimize
+
+    class Study:
+        def __init__(self, refusals):
+            self.refusals, self.ran = refusals, 0
+
+        def optimize(self, objective, n_trials, catch, callbacks):
+            assert n_trials == 1
+            if self.refusals:
+                self.refusals -= 1
+                raise ValueError('Cannot tell a COMPLETE trial.')
+            self.ran += 1
+
+    study = Study(refusals=1)
+    _optimize(study, lambda trial: 0.0, 3, [])
+    assert study.ran == 3
+    broken = Study(refusals=0)
+    broken.optimize = lambda *args, **kwargs: (_ for _ in ()).throw(ValueError('other'))
+    with pytest.raises(ValueError, match='other'):
+        _optimize(broken, lambda trial: 0.0, 3, [])

@@ -223,8 +223,29 @@ def run_worker(job: TuneJob, storage: Any, shares: dict[str, int], existing: dic
                                   sampler=sampler, pruner=pruner)
         callbacks = ([_progress(matcher, existing[matcher], totals[matcher])]
                      if job.progress else [])
-        study.optimize(_objective(job, matcher, bags), n_trials=shares[matcher],
-                       catch=(Exception,), callbacks=callbacks)
+        _optimize(study, _objective(job, matcher, bags), shares[matcher], callbacks)
+
+
+def _optimize(study: Any, objective: Callable[[Any], float], trials: int,
+              callbacks: list[Callable[[Any, Any], None]]) -> None:
+    """Run ``trials`` trials of ``study`` here, one at a time.
+
+    Two tune processes started on one new SQLite study may both take its queued
+    starting trial; the one that reports second is refused ("Cannot tell a COMPLETE
+    trial": SQLite has no ``SELECT ... FOR UPDATE``, optuna issue 4621). That trial
+    was the other process's: this one runs another in its place instead of stopping
+    with a traceback.
+    """
+    done = taken = 0
+    while done < trials and taken <= trials:
+        try:
+            study.optimize(objective, n_trials=1, catch=(Exception,), callbacks=callbacks)
+        except ValueError as error:
+            if 'Cannot tell a' not in str(error):
+                raise
+            taken += 1
+            continue
+        done += 1
 
 
 def _worker_main(job: TuneJob, shares: dict[str, int], existing: dict[str, int],
