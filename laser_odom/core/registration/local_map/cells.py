@@ -194,7 +194,7 @@ def refresh_blocks(changed: np.ndarray, inverse_resolution: float, refresh: int,
     block = np.empty(9, dtype=np.int64)
     neighbours = np.empty(9, dtype=np.int64)
     for c0 in changed:
-        for k in range(_block_cells(ints[c0, KEY], slot_keys, slot_cells, block)):
+        for k in range(block_cells(ints[c0, KEY], slot_keys, slot_cells, block)):
             c = block[k]
             if ints[c, REFRESHED] == refresh:
                 continue
@@ -205,8 +205,8 @@ def refresh_blocks(changed: np.ndarray, inverse_resolution: float, refresh: int,
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
-def _block_cells(key: int, slot_keys: np.ndarray, slot_cells: np.ndarray,
-                 out: np.ndarray) -> int:
+def block_cells(key: int, slot_keys: np.ndarray, slot_cells: np.ndarray,
+                out: np.ndarray) -> int:
     """Write the cells of the 3x3 block around the cell ``key`` into ``out``; return how many."""
     ix, iy = key >> 32, key & 0xFFFFFFFF
     count = 0
@@ -223,7 +223,7 @@ def _block_cells(key: int, slot_keys: np.ndarray, slot_cells: np.ndarray,
 def _pool_block(c: int, floats: np.ndarray, ints: np.ndarray, slot_keys: np.ndarray,
                 slot_cells: np.ndarray, block: np.ndarray) -> None:
     """Recompute cell ``c``'s block moments from the cells around it (``block``: scratch)."""
-    cells = _block_cells(ints[c, KEY], slot_keys, slot_cells, block)
+    cells = block_cells(ints[c, KEY], slot_keys, slot_cells, block)
     weight = sx = sy = 0.0
     for k in range(cells):
         n = block[k]
@@ -263,3 +263,23 @@ def stale_cells(centre_x: float, centre_y: float, radius: float, oldest: int,
             out[count] = c
             count += 1
     return out[:count]
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def line_normal(sxx: float, sxy: float, syy: float, max_curvature: float
+                ) -> tuple[float, float]:
+    """Return the unit normal of the total-least-squares line of the scatter ``S``.
+
+    ``S = [[sxx, sxy], [sxy, syy]]`` are (pooled) second moments about their mean, at
+    any scale. The line runs along the principal axis ``0.5 atan2(2 sxy, sxx - syy)``;
+    (0, 0) when there is no line: an empty scatter, or a curvature (the smaller
+    eigenvalue's share of the trace, Pauly et al. 2002) above ``max_curvature``.
+    """
+    total = sxx + syy
+    if total <= 0.0:
+        return 0.0, 0.0
+    spread = math.sqrt((0.5 * (sxx - syy)) ** 2 + sxy * sxy)
+    if (0.5 * total - spread) / total > max_curvature:
+        return 0.0, 0.0
+    principal = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    return -math.sin(principal), math.cos(principal)

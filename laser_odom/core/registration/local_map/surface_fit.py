@@ -31,8 +31,8 @@ import numba
 import numpy as np
 
 from laser_odom.core.registration.local_map.cells import (
-    ALIVE, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, find_cell,
-    KEY_OFFSET, MEAN_X, MEAN_Y)
+    ALIVE, block_cells, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, cell_key,
+    line_normal, MEAN_X, MEAN_Y)
 
 MAX_CURVATURE = 0.1
 """A block whose smaller scatter eigenvalue is more than this share of the sum
@@ -73,6 +73,7 @@ def _fit(points: np.ndarray, pose: np.ndarray, floats: np.ndarray, ints: np.ndar
     """Gauss-Newton on the Huber-weighted point-to-line residuals (the module's equation)."""
     x, y, theta = pose[0], pose[1], pose[2]
     pairs = 0
+    block = np.empty(9, dtype=np.int64)
     for _ in range(iterations):
         cos_t, sin_t = math.cos(theta), math.sin(theta)
         hessian = np.zeros((3, 3))
@@ -84,13 +85,13 @@ def _fit(points: np.ndarray, pose: np.ndarray, floats: np.ndarray, ints: np.ndar
             ay = sin_t * points[k, 0] + cos_t * points[k, 1]
             wx, wy = ax + x, ay + y
             cell = _nearest_cell(wx, wy, floats, ints, slot_keys, slot_cells,
-                                 inverse_resolution)
+                                 inverse_resolution, block)
             if cell < 0:
                 continue
-            line = _block_line(cell, floats, max_curvature)
-            if line[0] == 0.0 and line[1] == 0.0:
+            nx, ny = line_normal(floats[cell, BLOCK_XX], floats[cell, BLOCK_XY],
+                                 floats[cell, BLOCK_YY], max_curvature)
+            if nx == 0.0 and ny == 0.0:
                 continue
-            nx, ny = line[0], line[1]
             residual = nx * (wx - floats[cell, BLOCK_X]) + ny * (wy - floats[cell, BLOCK_Y])
             magnitude = abs(residual)
             weight = 1.0 if magnitude <= sigma else sigma / magnitude
@@ -114,41 +115,20 @@ def _fit(points: np.ndarray, pose: np.ndarray, floats: np.ndarray, ints: np.ndar
 
 @numba.njit(cache=True, nogil=True, inline='always')
 def _nearest_cell(x: float, y: float, floats: np.ndarray, ints: np.ndarray,
-                  slot_keys: np.ndarray, slot_cells: np.ndarray,
-                  inverse_resolution: float) -> int:
-    """Return the cell of the 3x3 around ``(x, y)`` whose mean is nearest, -1 if none."""
-    ix = np.int64(math.floor(x * inverse_resolution)) + KEY_OFFSET
-    iy = np.int64(math.floor(y * inverse_resolution)) + KEY_OFFSET
+                  slot_keys: np.ndarray, slot_cells: np.ndarray, inverse_resolution: float,
+                  block: np.ndarray) -> int:
+    """Return the cell of the 3x3 around ``(x, y)`` whose mean is nearest, -1 if none.
+
+    ``block`` is scratch space for the block's cells (:func:`.cells.block_cells`).
+    """
     best, best_distance = -1, math.inf
-    for ox in range(-1, 2):
-        for oy in range(-1, 2):
-            cell = find_cell(slot_keys, slot_cells, ((ix + ox) << 32) | (iy + oy))
-            if cell < 0 or ints[cell, ALIVE] == 0 or floats[cell, BLOCK_WEIGHT] <= 0.0:
-                continue
-            dx, dy = x - floats[cell, MEAN_X], y - floats[cell, MEAN_Y]
-            distance = dx * dx + dy * dy
-            if distance < best_distance:
-                best, best_distance = cell, distance
+    for k in range(block_cells(cell_key(x, y, inverse_resolution), slot_keys, slot_cells,
+                               block)):
+        cell = block[k]
+        if ints[cell, ALIVE] == 0 or floats[cell, BLOCK_WEIGHT] <= 0.0:
+            continue
+        dx, dy = x - floats[cell, MEAN_X], y - floats[cell, MEAN_Y]
+        distance = dx * dx + dy * dy
+        if distance < best_distance:
+            best, best_distance = cell, distance
     return best
-
-
-@numba.njit(cache=True, nogil=True, inline='always')
-def _block_line(cell: int, floats: np.ndarray, max_curvature: float) -> tuple[float, float]:
-    """Return the unit normal of the cell's block line, (0, 0) when it is no line."""
-    weight = floats[cell, BLOCK_WEIGHT]
-    sxx = floats[cell, BLOCK_XX] / weight
-    sxy = floats[cell, BLOCK_XY] / weight
-    syy = floats[cell, BLOCK_YY] / weight
-    half_trace = 0.5 * (sxx + syy)
-    spread = math.sqrt(max(half_trace * half_trace - (sxx * syy - sxy * sxy), 0.0))
-    smaller = half_trace - spread
-    if half_trace <= 0.0 or smaller / (2.0 * half_trace) > max_curvature:
-        return 0.0, 0.0
-    if abs(sxy) > 1e-12:
-        nx, ny = sxy, smaller - sxx
-    elif sxx < syy:
-        nx, ny = 1.0, 0.0
-    else:
-        nx, ny = 0.0, 1.0
-    norm = math.hypot(nx, ny)
-    return nx / norm, ny / norm

@@ -25,8 +25,8 @@ import numba
 import numpy as np
 
 from laser_odom.core.registration.local_map.cells import (
-    ALIVE, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, HITS, LAST_SEEN, MEAN_X,
-    MEAN_Y, S_XX, S_XY, S_YY, WEIGHT)
+    ALIVE, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, HITS, LAST_SEEN,
+    line_normal, MEAN_X, MEAN_Y, S_XX, S_XY, S_YY, WEIGHT)
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
@@ -161,14 +161,9 @@ def _ray_on_surface(x: float, y: float, cx: float, cy: float, a: float, h: float
     ``(x, y)`` stays where the surface is not flat, the ray grazes it, or the
     intersection lies more than ``margin`` from the mean.
     """
-    total = a + c
-    if total <= 0.0:
+    nx, ny = line_normal(a, h, c, RAYCAST_CURVATURE)
+    if nx == 0.0 and ny == 0.0:
         return x, y
-    spread = math.sqrt((0.5 * (a - c)) ** 2 + h * h)
-    if (0.5 * total - spread) / total > RAYCAST_CURVATURE:
-        return x, y
-    principal = 0.5 * math.atan2(2.0 * h, a - c)
-    nx, ny = -math.sin(principal), math.cos(principal)
     ux, uy = math.cos(angle), math.sin(angle)
     along = nx * ux + ny * uy
     if abs(along) < RAYCAST_MIN_COSINE:
