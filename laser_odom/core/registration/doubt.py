@@ -50,6 +50,17 @@ checked. At full rate the constant velocity misses by at most 0.32 m / 24 deg (f
 plicp; 99 % of the last-ten maxima below 0.19 m / 14 deg), so few scans are checked;
 on the fast logs it misses by more than that in nine of ten windows."""
 
+SURPRISE_FACTOR = 4.0
+"""A trusted prediction corrected by more than this multiple of the largest of the
+recent misses before it (in translation or rotation) surprised the match: a map whose
+view has its minimum elsewhere (MIT CSAIL, plicp: 0.25 m back along a corridor from a
+prediction the previous scan confirmed to 1 cm; then 0.21 m, and the constant velocity
+carried the wrong steps on for 9 scans, 2.8 m, silently)."""
+
+SURPRISE_FLOOR = (0.02, 0.02)
+"""The recent misses [m, rad] counted as at least this: predictions that hit to a
+millimetre do not make a centimetre's correction a surprise."""
+
 
 class PredictionDoubt:
     """How far recent trusted predictions were from the steps matched: whether to doubt."""
@@ -79,6 +90,20 @@ class PredictionDoubt:
             missed = np.array(misses)
             self._misses.append((float(np.max(np.hypot(missed[:, 0], missed[:, 1]))),
                                  float(np.max(np.abs(se2.wrap_angle(missed[:, 2]))))))
+
+    def surprised(self) -> bool:
+        """Tell whether the newest miss is far beyond the recent ones before it.
+
+        The newest record is the match just made; at least :data:`MIN_RECORD` before
+        it set the scale (:data:`SURPRISE_FACTOR`, :data:`SURPRISE_FLOOR`). Unlike
+        :meth:`doubt`, which checks the next predictions after a large miss, this
+        questions the match that made it.
+        """
+        if len(self._misses) <= MIN_RECORD:
+            return False
+        *earlier, newest = self._misses
+        usual = np.maximum(np.max(np.array(earlier), axis=0), SURPRISE_FLOOR)
+        return bool(np.any(np.array(newest) > SURPRISE_FACTOR * usual))
 
     def doubt(self, guess: se2.Pose, config: AcceptanceConfig, unproven: bool = True) -> str:
         """Return why the match from ``guess`` must be checked by the search, '' if not.

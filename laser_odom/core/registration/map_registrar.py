@@ -33,16 +33,23 @@ from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import ScanMatcher
 from laser_odom.core.registration.acceptance import judge_match, MatchVerdict
 from laser_odom.core.registration.local_map.reference import fits_usual, MapReference, MAX_REFUSED
+from laser_odom.core.registration.recovery import surface_fit
 from laser_odom.core.registration.registrar import Registrar, Registration
 from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
 from laser_odom.core.uncertainty.pose_uncertainty import CHI2_3DOF_999, nees
 
-MAP_EVENTS = ('map_fallback', 'map_restarted', 'map_disputed')
+MAP_EVENTS = ('map_fallback', 'map_restarted', 'map_disputed', 'map_surprised')
 """Counted events of map matching: a step taken from the previous scan because it
 fitted better than the map (``map_fallback``), the map started again from the current
 scan (``map_restarted``: after a rejected match, or scans in a row fitting it poorly),
 a map match that fitted poorly and that the previous scan contradicted
-(``map_disputed``: its covariance covers both)."""
+(``map_disputed``: its covariance covers both), a map match that corrected a good
+prediction by far more than usual and was checked against the previous scan
+(``map_surprised``)."""
+
+SURPRISE_FIT_SIGMA = 0.05
+"""Kernel width [m] of the surface fit that settles a surprise: the two steps it tells
+apart differ by decimetres (:meth:`MapRegistrar._settle_surprise`)."""
 
 STATUS_RANK = {'rejected': 0, 'degenerate': 1, 'matched': 2}
 """Order of the verdicts, worst first."""
@@ -118,6 +125,9 @@ class MapRegistrar:
                 verdict = judge_match(registration, guess, config, scale)
                 if clean_match(registration, verdict):
                     judged = JudgedMatch(view, registrar, registration, verdict)
+                    if previous is not None and registrar.doubt.surprised():
+                        return self._settle_surprise(matcher, previous, current, guess,
+                                                     config, judged)
                     if previous is None or fits_usual(local, registrar.usual.residual(),
                                                       None):
                         return judged
@@ -222,6 +232,38 @@ class MapRegistrar:
             f'{np.degrees(abs(difference[2])):.1f} deg: the step keeps the map match, '
             'with a covariance that covers both'))
         return judged._replace(doubt=np.outer(difference, difference))
+
+    def _settle_surprise(self, matcher: ScanMatcher, previous: ScanPoints,
+                         current: ScanPoints, guess: se2.Pose, config: PipelineConfig,
+                         judged: JudgedMatch) -> JudgedMatch:
+        """Settle a clean map match that corrected a good prediction by far more than usual.
+
+        The correction may be right (the robot braked) or the map's view may have its
+        minimum elsewhere (:data:`.doubt.SURPRISE_FACTOR`). The previous scan, matched
+        from the same prediction, is asked: when its match is clean and agrees
+        (:func:`steps_agree`), or is not clean, the map's step stands. When the two
+        disagree, each step is measured on both references with the same matcher-free
+        surface fit (:func:`.recovery.surface_fit`, the global search's likelihood) and
+        the one that fits both better is taken; on a tie (a corridor neither reference
+        constrains along its axis) the map's. 5 copies with 1 mm range noise, median
+        [worst]: MIT CSAIL plicp 3 silent failed steps in one copy -> none (ATE worst
+        1.68 -> 0.73 m), Intel nicp ATE 0.44 [0.50] -> 0.23 [0.26] m, drift 0.92 ->
+        0.48 %; the fast logs unchanged (their doubted predictions take another path).
+        """
+        self.events.count('map_surprised')
+        against_scan = self._clean_scan_match(matcher, previous, current, guess, config)
+        if against_scan is None:
+            return judged
+        registration, verdict = against_scan
+        if steps_agree(verdict, judged.verdict, matcher.config.map_covariance_scale):
+            return judged
+
+        def fit(pose: se2.Pose) -> float:
+            return sum(surface_fit(reference, current.points, pose, SURPRISE_FIT_SIGMA)[0]
+                       for reference in (previous, judged.reference))
+        if fit(verdict.pose) > fit(judged.verdict.pose):
+            return self._fallback(previous, registration, verdict)
+        return judged
 
     def _clean_scan_match(self, matcher: ScanMatcher, previous: ScanPoints,
                           current: ScanPoints, guess: se2.Pose, config: PipelineConfig
