@@ -31,8 +31,8 @@ JOURNEYS = ('Set up: two commands', 'On your robot', 'Which options when', 'Repl
             'License')
 """The README's sections, in the order a newcomer needs them (others may sit between)."""
 
-JARGON = ('map_fallback', 'map_disputed', 'map_restarted', 'NEES', 'ATE', 'RPE', 'CSM',
-          'virtual scan', 'ray-cast', 'silent', 'information-weighted',
+JARGON = ('map_fallback', 'map_disputed', 'map_restarted', 'map_surprised', 'NEES', 'ATE',
+          'RPE', 'CSM', 'virtual scan', 'ray-cast', 'silent', 'information-weighted',
           'hash of', 'de-skew', 'degenerate', 'global search', 'OdometryPipeline',
           'laser_odom/core', 'registration/', 'se2.py')
 """Names of the internals and the benchmark the README used and a newcomer does not know:

@@ -246,9 +246,12 @@ class MapRegistrar:
         surface fit (:func:`.recovery.surface_fit`, the global search's likelihood) and
         the one that fits both better is taken; on a tie (a corridor neither reference
         constrains along its axis) the map's. 5 copies with 1 mm range noise, median
-        [worst]: MIT CSAIL plicp 3 silent failed steps in one copy -> none (ATE worst
-        1.68 -> 0.73 m), Intel nicp ATE 0.44 [0.50] -> 0.23 [0.26] m, drift 0.92 ->
-        0.48 %; the fast logs unchanged (their doubted predictions take another path).
+        [worst]: MIT CSAIL plicp 3 silent failed steps in one copy -> none (ATE 0.53
+        [1.68] -> 0.46 [0.73] m), fr079 plicp 2 silent -> none (drift 0.31 [0.47] ->
+        0.29 [0.31] %), Intel nicp drift 0.92 [0.98] -> 0.55 [0.92] %; the fast logs
+        unchanged (their doubted predictions take another path). Arbitrating
+        ``map_disputed`` the same way was measured too: fr079 plicp then failed 9 steps
+        silently in two copies.
         """
         self.events.count('map_surprised')
         against_scan = self._clean_scan_match(matcher, previous, current, guess, config)
