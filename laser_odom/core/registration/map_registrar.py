@@ -125,7 +125,8 @@ class MapRegistrar:
                 verdict = judge_match(registration, guess, config, scale)
                 if clean_match(registration, verdict):
                     judged = JudgedMatch(view, registrar, registration, verdict)
-                    if previous is not None and registrar.doubt.surprised():
+                    if (matcher.config.map_surprise_check and previous is not None
+                            and registrar.doubt.surprised()):
                         return self._settle_surprise(matcher, previous, current, guess,
                                                      config, judged)
                     if previous is None or fits_usual(local, registrar.usual.residual(),

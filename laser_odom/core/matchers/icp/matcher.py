@@ -54,6 +54,7 @@ class IcpConfig(MatcherConfig):
     covariance_baseline_falloff: float = retune(MatcherConfig, 'covariance_baseline_falloff',
                                                 1.0)
     map_covariance_scale: float = retune(MatcherConfig, 'map_covariance_scale', 1.9)
+    map_surprise_check: bool = retune(MatcherConfig, 'map_surprise_check', False)
     max_correspondence_distance: float = retune(MatcherConfig, 'max_correspondence_distance', 0.3)
     min_keep_fraction: float = param(
         0.8, 'Trimming: always keep at least this fraction of the gated pairs.', 0.1, 1.0,
