@@ -167,12 +167,17 @@ def test_a_featureless_corridor_does_not_run_away_against_the_map():
     assert mapped <= 1.1 * scan, (scan, mapped)
 
 
-@pytest.mark.parametrize('matcher', ('icp', 'plicp'))
-def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office, matcher):
-    # fr079, icp: a map match 10 deg off (from a prediction 8 deg off) was judged clean
-    # at twice the usual residual and published with a covariance of 0.5 deg. The
-    # previous scan, matched from the same prediction, is the second opinion: when it
-    # disagrees, the map's step keeps a covariance that covers the other.
+TIGHT = np.diag([1e-6, 1e-6, 1e-6])
+"""The covariance of a map match judged clean and tight (:func:`map_matches_at_scan_60`)."""
+
+
+def map_matches_at_scan_60(office, matcher: str):
+    """Run 60 office scans against the map; return what judges the 61st scan's step.
+
+    The pipeline, the previous scan, the current scan, the true step, and a maker of
+    the current scan's map match moved to any pose and judged clean with :data:`TIGHT`
+    (a match the registrar must check against the previous scan).
+    """
     pipeline = OdometryPipeline(config(matcher), events=EventLog(lambda message: None))
     run_pipeline(pipeline, office.scans[:60])
     registrar = pipeline.map_registrar
@@ -180,16 +185,25 @@ def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office
     current, _ = pipeline.validator.check(office.scans[60])
     truth = se2.relative(office.reference.poses[59], office.reference.poses[60])
     view = registrar.view(pipeline.pose, office.scans[60].stamp_ns)
-    tight = np.diag([1e-6, 1e-6, 1e-6])
     against_map, _ = pipeline.registrar.try_local(pipeline.matcher, view, current, truth,
                                                   pipeline.config)
 
     def map_match(pose: np.ndarray) -> JudgedMatch:
-        """Return the map match, moved to ``pose`` and judged clean and tight."""
         moved = Registration(replace(against_map.match, pose=np.asarray(pose, dtype=float)))
-        return JudgedMatch(view, pipeline.registrar, moved, MatchVerdict(moved.match.pose,
-                                                                         tight, 'matched'))
+        return JudgedMatch(view, pipeline.registrar, moved,
+                           MatchVerdict(moved.match.pose, TIGHT, 'matched'))
 
+    return pipeline, previous, current, truth, map_match
+
+
+@pytest.mark.parametrize('matcher', ('icp', 'plicp'))
+def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office, matcher):
+    # fr079, icp: a map match 10 deg off (from a prediction 8 deg off) was judged clean
+    # at twice the usual residual and published with a covariance of 0.5 deg. The
+    # previous scan, matched from the same prediction, is the second opinion: when it
+    # disagrees, the map's step keeps a covariance that covers the other.
+    pipeline, previous, current, truth, map_match = map_matches_at_scan_60(office, matcher)
+    registrar = pipeline.map_registrar
     wrong = map_match(se2.compose(truth, se2.pose(0.0, 0.0, 0.17)))
     judged = registrar._second_opinion(pipeline.matcher, previous, current, truth,
                                        pipeline.config, wrong)
@@ -200,7 +214,7 @@ def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office
     error[2] = se2.wrap_angle(error[2])
     # Covered as the evaluation counts it (a silent failed step is one outside the
     # 99.9 % bound); the verdict's own covariance was far from it.
-    assert nees(error, covariance) <= CHI2_3DOF_999 < nees(error, tight), (error, covariance)
+    assert nees(error, covariance) <= CHI2_3DOF_999 < nees(error, TIGHT), (error, covariance)
     assert model == StepErrorModel()  # ignorance: it adds up, white
     assert pipeline.counters['map_disputed'] == 1
     right = map_match(truth)
@@ -296,21 +310,8 @@ def test_a_surprising_map_match_the_previous_scan_contradicts_gives_way(office, 
     # prediction the previous scan confirmed to 1 cm; the match was judged clean, and
     # the constant velocity carried the wrong steps on (3 silent failed steps). When
     # the two references disagree, the step that fits both better is taken.
-    pipeline = OdometryPipeline(config(matcher), events=EventLog(lambda message: None))
-    run_pipeline(pipeline, office.scans[:60])
+    pipeline, previous, current, truth, map_match = map_matches_at_scan_60(office, matcher)
     registrar = pipeline.map_registrar
-    previous = registrar.map.previous_scan
-    current, _ = pipeline.validator.check(office.scans[60])
-    truth = se2.relative(office.reference.poses[59], office.reference.poses[60])
-    view = registrar.view(pipeline.pose, office.scans[60].stamp_ns)
-    against_map, _ = pipeline.registrar.try_local(pipeline.matcher, view, current, truth,
-                                                  pipeline.config)
-
-    def map_match(pose: np.ndarray) -> JudgedMatch:
-        moved = Registration(replace(against_map.match, pose=np.asarray(pose, dtype=float)))
-        return JudgedMatch(view, pipeline.registrar, moved, MatchVerdict(
-            moved.match.pose, np.diag([1e-6, 1e-6, 1e-6]), 'matched'))
-
     counted = pipeline.counters['map_surprised']
     wrong = map_match(se2.compose(truth, se2.pose(-0.25, 0.0, 0.0)))
     settled = registrar._settle_surprise(pipeline.matcher, previous, current, truth,
