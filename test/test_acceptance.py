@@ -201,6 +201,42 @@ def test_an_ambiguous_match_covers_its_alternatives():
     np.testing.assert_array_equal(verdict.pose, pose)
 
 
+def test_a_match_made_again_keeps_the_doubts_of_the_first():
+    """De-skewed and matched again, an ambiguous step stays degenerate.
+
+    The second match is clean and tight, but its covariance covers the first verdict's
+    (the alternative, and the shift between the two poses); a clean first match leaves
+    the second's verdict as judged.
+    """
+    from laser_odom.core.registration.acceptance import (
+        covering_both, covering_covariance, judge_again, judge_match)
+    from laser_odom.core.registration.registrar import Registration
+    config = PipelineConfig()
+    first_pose, alternative = se2.pose(0.2, 0.0, 0.1), se2.pose(0.7, 0.0, 0.1)
+    first = judge_match(Registration(good_match(first_pose), trigger='reset', trusted=False,
+                                     alternatives=[(alternative, 0.97)]), first_pose, config)
+    assert first.status == 'degenerate'
+    again = Registration(good_match((0.23, 0.0, 0.1)))
+    assert judge_match(again, first_pose, config).status == 'matched'
+    verdict = judge_again(first, Registration(good_match((0.23, 0.0, 0.1))), config)
+    assert verdict.status == 'degenerate'
+    np.testing.assert_array_equal(verdict.pose, [0.23, 0.0, 0.1])
+    offset = alternative - verdict.pose
+    assert offset @ np.linalg.solve(verdict.covariance, offset) < 1.0  # still covered
+    shift = verdict.pose - first_pose
+    expected = covering_covariance(verdict.pose, first.covariance, [first_pose])
+    for direction in (np.array([1.0, 0.0, 0.0]), shift / np.linalg.norm(shift)):
+        assert direction @ verdict.covariance @ direction >= \
+            direction @ expected @ direction - 1e-12
+    clean = judge_match(Registration(good_match(first_pose)), first_pose, config)
+    verdict = judge_again(clean, Registration(good_match((0.21, 0.0, 0.1))), config)
+    assert verdict.status == 'matched'
+    np.testing.assert_array_equal(verdict.covariance, good_match().covariance)
+    wide, narrow = np.diag([4.0, 1.0, 1.0]), np.diag([1.0, 9.0, 0.5])
+    np.testing.assert_allclose(covering_both(wide, narrow), np.diag([4.0, 9.0, 1.0]),
+                               atol=1e-12)
+
+
 def test_acceptance_rejects_unconverged_and_poorly_paired_matches():
     from laser_odom.core.registration.rejection import rejection_reason
     from laser_odom.core.configuration.pipeline import AcceptanceConfig

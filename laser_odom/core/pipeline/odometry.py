@@ -22,9 +22,10 @@ from laser_odom.core.matchers import matcher_class, ScanMatcher
 from laser_odom.core.motion.model import MotionModel
 from laser_odom.core.pipeline.announce import say_why
 from laser_odom.core.pipeline.estimate import OdometryEstimate, UNKNOWN_TWIST_VARIANCE
-from laser_odom.core.preprocess.deskew import deskew_change, deskewed, twist_of_step
+from laser_odom.core.preprocess.deskew import (
+    deskew_change, deskewed, SweepTwist, twist_of_step)
 from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
-from laser_odom.core.registration.acceptance import judge_match
+from laser_odom.core.registration.acceptance import judge_again, judge_match
 from laser_odom.core.registration.map_registrar import JudgedMatch, MapRegistrar
 from laser_odom.core.registration.registrar import Registrar
 from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
@@ -91,6 +92,7 @@ class OdometryPipeline:
         self.last_stamp_ns: int | None = None
         self.untrusted = 'reset'
         self.motion.reset()
+        self.sweep_twist = SweepTwist()
         if self.map_registrar is not None:
             self.map_registrar.reset()
 
@@ -354,14 +356,20 @@ class OdometryPipeline:
         stale_reference = not self.keyframe_deskewed
         self.keyframe_deskewed = True
         reference_shift = deskew_change(self.keyframe, measured) if stale_reference else 0.0
-        if max(reference_shift, deskew_change(current, measured)) <= DESKEW_TOLERANCE:
+        changed = max(reference_shift, deskew_change(current, measured)) > DESKEW_TOLERANCE
+        current_twist = measured
+        if self.map_registrar is None:  # the map is not de-skewed with it: SweepTwist
+            current_twist = self.sweep_twist.over_sweep(
+                measured, current.stamp_ns, sweep_dt, float(np.median(current.times)),
+                changed)
+        if not changed:
             return current, judged
         if reference_shift > DESKEW_TOLERANCE:
             self.keyframe = reference = deskewed(self.keyframe, measured)
-        again_points = deskewed(current, measured)
+        again_points = deskewed(current, current_twist)
         again = judged.registrar.register(self.matcher, reference, again_points,
                                           verdict.pose, self.config, '', verify=False)
-        second = judge_match(again, verdict.pose, self.config, again_points.length_scale)
+        second = judge_again(verdict, again, self.config, again_points.length_scale)
         if second.status == 'rejected':
             return current, judged
         return again_points, judged._replace(reference=reference, registration=again,

@@ -164,6 +164,67 @@ def sweep_shift(times: np.ndarray, ranges: np.ndarray, twist_change: np.ndarray)
     return t * (math.hypot(twist_change[0], twist_change[1]) + abs(twist_change[2]) * r)
 
 
+class SweepTwist:
+    """The twist a scan is de-skewed with once its match measured the step's.
+
+    A match measures the twist of the step from the reference's stamp to the current
+    one, an interval centred half a step before the current stamp. A scan stamped at
+    its first beam is swept *after* its stamp (centred ``sweep_middle_s`` after it), so
+    when the robot starts or ends a turn the measured twist lags the one over the sweep:
+    at 1.5 rad/s reached within a second, by a few tenths of a rad/s, which bends a wall
+    20 m away by decimetres. The twist is extrapolated linearly to the sweep's middle
+    from the change since the previous scan's measurement: ``w + (w - w_prev) (dt / 2 +
+    sweep_middle_s) / (t - t_prev)``. A scan stamped at its last beam is swept before its
+    stamp and the extrapolation nearly vanishes.
+
+    Two choices keep the extrapolation from feeding on itself or on noise:
+
+    - both twists are first measurements, each from a match whose scans were de-skewed
+      with the prediction; differencing the final twists (matched after de-skewing with
+      an extrapolated one) drove the simulated slow hall's 50 m drift from 1.7 to 11 % (nicp);
+    - it is used only when the measured twist moves the points by more than
+      :data:`.pipeline.odometry.DESKEW_TOLERANCE` (``changed``: the scan is matched
+      again anyway); in steady motion consecutive twists differ by their noise, which
+      extrapolating would double.
+
+    A component is extrapolated past zero too: stopping it there (a turn ending at
+    rest) made the fast worlds' drift worse (nicp 0.7 -> 2.9-4.3 %), since a
+    component near zero (the lateral speed, the turn rate on a straight) changes sign
+    with its noise.
+
+    Scan to scan only: there the reference scan is de-skewed again with the same measured
+    twist, so a twist that is off bends both scans alike and the match hardly moves.
+    The local map is not de-skewed again; the measured twist then carries the current
+    scan's de-skew error, and extrapolating it diverged within 30 scans (the simulated
+    slow hall, nicp: 50 m drift 0.6 -> 109 %).
+    """
+
+    def __init__(self) -> None:
+        """Start without a previous measurement."""
+        self.forget()
+
+    def forget(self) -> None:
+        """Drop the previous measurement (the pipeline was reset)."""
+        self._previous: tuple[int, np.ndarray] | None = None
+
+    def over_sweep(self, measured: np.ndarray, stamp_ns: int, step_dt: float,
+                   sweep_middle_s: float, changed: bool) -> np.ndarray:
+        """Return the twist to de-skew the scan stamped ``stamp_ns`` with, and record ``measured``.
+
+        ``step_dt`` [s] is the measured step's interval, ``sweep_middle_s`` [s] the
+        middle of the scan's beam times relative to its stamp.
+        """
+        measured = np.asarray(measured, dtype=float)
+        previous, self._previous = self._previous, (stamp_ns, measured)
+        if not changed or previous is None:
+            return measured
+        span = (stamp_ns - previous[0]) * 1e-9
+        if not span > 0.0:
+            return measured
+        lead = 0.5 * step_dt + sweep_middle_s
+        return measured + (measured - previous[1]) * (lead / span)
+
+
 def deskewed(scan: ScanPoints, twist: np.ndarray) -> ScanPoints:
     """Return the scan's points moved to the stamp by ``twist``.
 

@@ -97,6 +97,40 @@ def judge_match(registration: Registration, guess: se2.Pose, config: PipelineCon
     return verdict
 
 
+def judge_again(first: MatchVerdict, again: Registration, config: PipelineConfig,
+                length_scale: float = 1.0) -> MatchVerdict:
+    """Judge a match made again from a judged one (de-skewed with its measured motion).
+
+    The second match starts at the first's pose with the scan's points moved by a few
+    centimetres: it sharpens the pose, it cannot settle what made the first doubtful
+    (poses that fit alike, a direction the scene does not constrain, a poor fit). So
+    a degenerate first verdict stays degenerate: its covariance, grown by ``d d^T`` for
+    the shift ``d`` to the second's pose (:func:`covering_covariance`), stands where the
+    second's is smaller. Judged afresh, such steps came out ``matched`` with
+    centimetres of covariance. Kept degenerate, the simulated fast hall (3 seeds,
+    plicp, nicp and imls; measured before :class:`.deskew.SweepTwist`) had 9 silent
+    failed steps instead of 18 scan to scan and 9 instead of 29 against the local map,
+    on the same trajectories.
+    """
+    second = judge_match(again, first.pose, config, length_scale)
+    if first.status != 'degenerate' or second.status == 'rejected':
+        return second
+    covariance = covering_covariance(second.pose, first.covariance, [first.pose])
+    return MatchVerdict(second.pose, covering_both(covariance, second.covariance),
+                        'degenerate')
+
+
+def covering_both(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Return ``first + (second - first)_+``: at least as wide as both in every direction.
+
+    ``(.)_+`` keeps the positive eigenvalues of the symmetric difference.
+    """
+    difference = 0.5 * ((second - first) + (second - first).T)
+    values, vectors = np.linalg.eigh(difference)
+    out = first + (vectors * np.maximum(values, 0.0)) @ vectors.T
+    return 0.5 * (out + out.T)
+
+
 def rejected_covariance(window: SearchWindow) -> np.ndarray:
     """Return the step covariance of a rejected match: the motion is anywhere in the window.
 
