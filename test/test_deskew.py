@@ -11,7 +11,8 @@ from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.preprocess.deskew import (
-    beam_times, DESKEW_EVENTS, move_points, sweep_times, SweepTwist, twist_of_step)
+    beam_times, DESKEW_EVENTS, move_points, SWEEP_LEAD, sweep_times, SweepTwist,
+    twist_of_step)
 from laser_odom.core.scan.laser_scan import LaserScan, scan_to_points
 from laser_odom.core.simulation import get_world, simulate
 from laser_odom.core.simulation.laser import render_swept_scan
@@ -51,26 +52,28 @@ def test_moving_points_is_the_se2_exponential_of_the_twist():
 
 
 def test_the_sweep_twist_is_extrapolated_from_the_last_change_when_it_matters():
-    """Linear in time to the sweep's middle, from the previous scan's measured twist.
+    """Linear in time, 7/8 of a step ahead, from the previous scan's measured twist.
 
-    Measured over the step centred 0.1 s before the stamp, a turn rate rising from 0.5
-    to 1.0 rad/s in 0.2 s is 1.4375 rad/s at the middle of a sweep 0.075 s after it;
-    the first scan, a change too small to matter and a reset give the measured twist.
+    A turn rate rising from 0.5 to 1.0 rad/s over a 0.2 s step is 1.4375 rad/s 7/8 of
+    a step later; stamped at the last beam, 1/8 of a step. The first scan, a change too
+    small to matter and a reset give the measured twist.
     """
     twists = SweepTwist()
     first = np.array([0.3, 0.0, 0.5])
-    np.testing.assert_array_equal(twists.over_sweep(first, 0, 0.2, 0.075, True), first)
+    np.testing.assert_array_equal(twists.over_sweep(first, 0, 0.2, True, True), first)
     second = np.array([0.5, 0.02, 1.0])
-    extrapolated = twists.over_sweep(second, 200_000_000, 0.2, 0.075, True)
-    np.testing.assert_allclose(extrapolated, second + (second - first) * 0.875)
+    extrapolated = twists.over_sweep(second, 200_000_000, 0.2, True, True)
+    np.testing.assert_allclose(extrapolated, second + (second - first) * SWEEP_LEAD)
     assert extrapolated[2] == pytest.approx(1.4375)
     third = np.array([0.5, 0.0, 1.2])
-    assert np.array_equal(twists.over_sweep(third, 400_000_000, 0.2, 0.075, False), third)
-    # Stamped at the last beam the sweep is within the step: a small step back.
-    again = twists.over_sweep(second, 600_000_000, 0.2, -0.075, True)
+    assert np.array_equal(twists.over_sweep(third, 400_000_000, 0.2, True, False), third)
+    again = twists.over_sweep(second, 600_000_000, 0.2, False, True)
     np.testing.assert_allclose(again, second + (second - third) * 0.125)
+    # A dropped scan: the change is spread over two periods.
+    dropped = twists.over_sweep(third, 1_000_000_000, 0.2, True, True)
+    np.testing.assert_allclose(dropped, third + (third - second) * SWEEP_LEAD / 2.0)
     twists.forget()
-    np.testing.assert_array_equal(twists.over_sweep(third, 800_000_000, 0.2, 0.075, True),
+    np.testing.assert_array_equal(twists.over_sweep(third, 1_200_000_000, 0.2, True, True),
                                   third)
 
 

@@ -360,7 +360,7 @@ class OdometryPipeline:
         current_twist = measured
         if self.map_registrar is None:  # the map is not de-skewed with it: SweepTwist
             current_twist = self.sweep_twist.over_sweep(
-                measured, current.stamp_ns, sweep_dt, float(np.median(current.times)),
+                measured, current.stamp_ns, sweep_dt, float(np.median(current.times)) > 0.0,
                 changed)
         if not changed:
             return current, judged

@@ -164,33 +164,42 @@ def sweep_shift(times: np.ndarray, ranges: np.ndarray, twist_change: np.ndarray)
     return t * (math.hypot(twist_change[0], twist_change[1]) + abs(twist_change[2]) * r)
 
 
+SWEEP_LEAD = 0.875
+"""Steps from the middle of a measured step to the middle of the next sweep, for a scan
+stamped at its first beam: half a step, then half of a sweep lasting three quarters of
+the period (a 270 deg scanner). Taken for every scanner: a whole step, the middle of a
+360 deg scanner's sweep, measured worse in the simulated hall (RPLidar A1, nicp and
+imls, 50 m drift 0.5-0.7 % -> 0.8-1.4 %), and so did the middle of the beam times of
+the points that returned."""
+
+
 class SweepTwist:
     """The twist a scan is de-skewed with once its match measured the step's.
 
     A match measures the twist of the step from the reference's stamp to the current
     one, an interval centred half a step before the current stamp. A scan stamped at
-    its first beam is swept *after* its stamp (centred ``sweep_middle_s`` after it), so
-    when the robot starts or ends a turn the measured twist lags the one over the sweep:
-    at 1.5 rad/s reached within a second, by a few tenths of a rad/s, which bends a wall
-    20 m away by decimetres. The twist is extrapolated linearly to the sweep's middle
-    from the change since the previous scan's measurement: ``w + (w - w_prev) (dt / 2 +
-    sweep_middle_s) / (t - t_prev)``. A scan stamped at its last beam is swept before its
-    stamp and the extrapolation nearly vanishes.
+    its first beam is swept *after* its stamp, so when the robot starts or ends a turn
+    the measured twist lags the one over the sweep: at 1.5 rad/s reached within a
+    second, by a few tenths of a rad/s, which bends a wall 20 m away by decimetres. The
+    twist is extrapolated linearly from the change since the previous scan's
+    measurement, :data:`SWEEP_LEAD` steps ahead: ``w + (w - w_prev) lead dt / (t -
+    t_prev)``. A scan stamped at its last beam is swept before its stamp, and the lead
+    is an eighth of a step.
 
-    Two choices keep the extrapolation from feeding on itself or on noise:
+    Three choices keep the extrapolation from feeding on itself or on noise:
 
     - both twists are first measurements, each from a match whose scans were de-skewed
       with the prediction; differencing the final twists (matched after de-skewing with
-      an extrapolated one) drove the simulated slow hall's 50 m drift from 1.7 to 11 % (nicp);
+      an extrapolated one) drove the simulated slow hall's 50 m drift from 1.7 to 11 %
+      (nicp);
     - it is used only when the measured twist moves the points by more than
       :data:`.pipeline.odometry.DESKEW_TOLERANCE` (``changed``: the scan is matched
       again anyway); in steady motion consecutive twists differ by their noise, which
-      extrapolating would double.
-
-    A component is extrapolated past zero too: stopping it there (a turn ending at
-    rest) made the fast worlds' drift worse (nicp 0.7 -> 2.9-4.3 %), since a
-    component near zero (the lateral speed, the turn rate on a straight) changes sign
-    with its noise.
+      extrapolating would double;
+    - a component is extrapolated past zero too: stopping it there (a turn ending at
+      rest) made the fast worlds' drift worse (nicp 0.7 -> 2.9-4.3 %), since a
+      component near zero (the lateral speed, the turn rate on a straight) changes sign
+      with its noise.
 
     Scan to scan only: there the reference scan is de-skewed again with the same measured
     twist, so a twist that is off bends both scans alike and the match hardly moves.
@@ -208,11 +217,11 @@ class SweepTwist:
         self._previous: tuple[int, np.ndarray] | None = None
 
     def over_sweep(self, measured: np.ndarray, stamp_ns: int, step_dt: float,
-                   sweep_middle_s: float, changed: bool) -> np.ndarray:
+                   sweeps_after_stamp: bool, changed: bool) -> np.ndarray:
         """Return the twist to de-skew the scan stamped ``stamp_ns`` with, and record ``measured``.
 
-        ``step_dt`` [s] is the measured step's interval, ``sweep_middle_s`` [s] the
-        middle of the scan's beam times relative to its stamp.
+        ``step_dt`` [s] is the measured step's interval; ``sweeps_after_stamp`` tells
+        whether the scan is stamped at its first beam.
         """
         measured = np.asarray(measured, dtype=float)
         previous, self._previous = self._previous, (stamp_ns, measured)
@@ -221,8 +230,8 @@ class SweepTwist:
         span = (stamp_ns - previous[0]) * 1e-9
         if not span > 0.0:
             return measured
-        lead = 0.5 * step_dt + sweep_middle_s
-        return measured + (measured - previous[1]) * (lead / span)
+        lead = SWEEP_LEAD if sweeps_after_stamp else 1.0 - SWEEP_LEAD
+        return measured + (measured - previous[1]) * (lead * step_dt / span)
 
 
 def deskewed(scan: ScanPoints, twist: np.ndarray) -> ScanPoints:
