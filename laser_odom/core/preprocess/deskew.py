@@ -167,10 +167,10 @@ def sweep_shift(times: np.ndarray, ranges: np.ndarray, twist_change: np.ndarray)
 SWEEP_LEAD = 0.875
 """Steps from the middle of a measured step to the middle of the next sweep, for a scan
 stamped at its first beam: half a step, then half of a sweep lasting three quarters of
-the period (a 270 deg scanner). Taken for every scanner: a whole step, the middle of a
-360 deg scanner's sweep, measured worse in the simulated hall (RPLidar A1, nicp and
-imls, 50 m drift 0.5-0.7 % -> 0.8-1.4 %), and so did the middle of the beam times of
-the points that returned."""
+the period (a 270 deg scanner). Taken for every scanner: the middle of the beam times of
+the points that returned (about a whole step under the 360 deg RPLidar A1) measured
+worse in the simulated fast hall (nicp and imls, 50 m drift 0.5-0.7 % -> 0.8-1.4 %),
+and so did their median (nicp 0.7 -> 1.8 %)."""
 
 
 class SweepTwist:
