@@ -8,6 +8,7 @@ left after shutdown.
 """
 
 import os
+import time
 
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
@@ -28,6 +29,8 @@ NAMESPACE = f'/managed_{os.getpid()}'
 NODE = f'{NAMESPACE}/laser_odom'
 STATUS = f'{NODE[1:]}: odometry'
 SECOND = 1_000_000_000
+ANSWER_WAIT = 10.0
+"""Seconds after which a GetState request without an answer is sent again."""
 QUIET = 3.0
 """Seconds of listening in which a node that published would have been heard: three
 diagnostics periods, and many times a scan's round trip."""
@@ -49,10 +52,21 @@ class Lifecycle:
         self.state_client = peer.node.create_client(GetState, f'{node}/get_state')
 
     def state(self) -> str:
-        """Return the node's state label."""
+        """Return the node's state label.
+
+        GetState only reads, so a request whose answer does not come within
+        :data:`ANSWER_WAIT` is sent again: a service just discovered may lose its first
+        answer (its reply writer not yet matched with our reader). Waiting for that
+        one answer hung a CI run's first GetState for the whole STARTUP_TIMEOUT, three
+        times over.
+        """
         assert self.state_client.wait_for_service(timeout_sec=STARTUP_TIMEOUT)
-        return call(self.peer, self.state_client.call_async(GetState.Request()),
-                    STARTUP_TIMEOUT).current_state.label
+        end = time.monotonic() + STARTUP_TIMEOUT
+        future = self.state_client.call_async(GetState.Request())
+        while not self.peer.spin_until(future.done, ANSWER_WAIT) and time.monotonic() < end:
+            self.state_client.remove_pending_request(future)
+            future = self.state_client.call_async(GetState.Request())
+        return call(self.peer, future, 0.0).current_state.label
 
     def change(self, transition: int) -> bool:
         """Ask for a transition (by id, as ros2 lifecycle set does); True if it succeeded."""
