@@ -23,7 +23,7 @@ from laser_odom.core.motion.model import MotionModel
 from laser_odom.core.pipeline.announce import say_why
 from laser_odom.core.pipeline.estimate import OdometryEstimate, UNKNOWN_TWIST_VARIANCE
 from laser_odom.core.preprocess.deskew import (
-    deskew_change, deskewed, SweepTwist, twist_of_step)
+    deskew_change, deskewed, sweeps_after_stamp, SweepTwist, twist_of_step)
 from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
 from laser_odom.core.registration.acceptance import judge_again, judge_match
 from laser_odom.core.registration.map_registrar import JudgedMatch, MapRegistrar
@@ -360,8 +360,7 @@ class OdometryPipeline:
         current_twist = measured
         if self.map_registrar is None:  # the map is not de-skewed with it: SweepTwist
             current_twist = self.sweep_twist.over_sweep(
-                measured, current.stamp_ns, sweep_dt, float(np.median(current.times)) > 0.0,
-                changed)
+                measured, current.stamp_ns, sweep_dt, sweeps_after_stamp(current), changed)
         if not changed:
             return current, judged
         if reference_shift > DESKEW_TOLERANCE:
@@ -411,8 +410,7 @@ class OdometryPipeline:
         """
         self.keyframe = current
         self.keyframe_prepared = False
-        sweeps_after_stamp = current.times is not None and float(np.median(current.times)) > 0
-        self.keyframe_deskewed = motion_known and not sweeps_after_stamp
+        self.keyframe_deskewed = motion_known and not sweeps_after_stamp(current)
         self.keyframe_pose = self.pose.copy()
         self.keyframe_uncertainty = self.uncertainty
         self.scans_after_keyframe = 0

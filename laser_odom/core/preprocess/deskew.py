@@ -186,7 +186,7 @@ class SweepTwist:
     t_prev)``. A scan stamped at its last beam is swept before its stamp, and the lead
     is an eighth of a step.
 
-    Three choices keep the extrapolation from feeding on itself or on noise:
+    Three choices, each measured against its alternative:
 
     - both twists are first measurements, each from a match whose scans were de-skewed
       with the prediction; differencing the final twists (matched after de-skewing with
@@ -232,6 +232,11 @@ class SweepTwist:
             return measured
         lead = SWEEP_LEAD if sweeps_after_stamp else 1.0 - SWEEP_LEAD
         return measured + (measured - previous[1]) * (lead * step_dt / span)
+
+
+def sweeps_after_stamp(scan: ScanPoints) -> bool:
+    """Tell whether the scan was swept after its stamp (stamped at its first beam)."""
+    return scan.times is not None and float(np.median(scan.times)) > 0.0
 
 
 def deskewed(scan: ScanPoints, twist: np.ndarray) -> ScanPoints:
