@@ -214,9 +214,11 @@ class SweepTwist:
     (3 seeds of the fast hall and campus, plicp, nicp and imls, mixed or worse):
     keeping the newest scan out of the map until the next match measures its sweep;
     extrapolating the twist of a second match against the previous scan instead
-    (imls hall 0.2-0.6 %, but nicp campus 10-17 % and plicp worse everywhere); the twist
-    corrected by matching the two halves of the sweep on their own (noisier than the
-    measured twist).
+    (imls hall 0.2-0.6 %, but nicp campus 10-17 % and plicp worse everywhere); taking
+    the step from that match, made again as scan to scan does, whenever the de-skew
+    matters (nicp hall failed steps 14 -> 3, but one nicp campus seed drifted 32 %);
+    the twist corrected by matching the two halves of the sweep on their own (noisier
+    than the measured twist).
     """
 
     def __init__(self) -> None:
