@@ -11,9 +11,9 @@ from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline.odometry import OdometryPipeline
 from laser_odom.core.preprocess.deskew import (
-    beam_times, DESKEW_EVENTS, move_points, SWEEP_LEAD, sweep_times, SweepTwist,
-    twist_of_step)
-from laser_odom.core.scan.laser_scan import LaserScan, scan_to_points
+    beam_times, DESKEW_EVENTS, MID_SWEEP_WEIGHT, MidSweepTwist, move_points, step_of_twist,
+    SWEEP_LEAD, sweep_times, SweepTwist, twist_of_step)
+from laser_odom.core.scan.laser_scan import LaserScan, scan_to_points, ScanPoints
 from laser_odom.core.simulation import get_world, simulate
 from laser_odom.core.simulation.laser import render_swept_scan
 from laser_odom.core.simulation.motions import ConstantTwist
@@ -75,6 +75,53 @@ def test_the_sweep_twist_is_extrapolated_from_the_last_change_when_it_matters():
     twists.forget()
     np.testing.assert_array_equal(twists.over_sweep(third, 1_200_000_000, 0.2, True, True),
                                   third)
+
+
+def _swept(stamp_ns: int, twist: np.ndarray, times: np.ndarray) -> ScanPoints:
+    """Return a scan stamped ``stamp_ns`` whose points were de-skewed with ``twist``."""
+    points = np.column_stack((np.cos(times), np.sin(times))) * 5.0
+    return ScanPoints(points, np.arange(len(times)), np.full(len(times), 5.0), stamp_ns,
+                      times=times, measured=points, twist=twist)
+
+
+def test_the_twist_between_mid_sweep_poses_ignores_the_de_skew_error_of_each_pose():
+    """A map match off by ``-t_m e`` for a twist off by ``e`` leaves the mid pose true.
+
+    The robot turns at 1.0 rad/s while driving at 0.5 m/s; each scan (beam times 0-0.2
+    s, mean 0.1 s) was de-skewed with a different wrong twist and matched at the pose
+    that absorbs it. The measured steps (differences of those poses) are off by tenths
+    of a rad/s; the twist between mid-sweep poses is exact, and the scan is de-skewed
+    with the mean of the two.
+    """
+    true = np.array([0.5, 0.0, 1.0])
+    times = np.linspace(0.0, 0.2, 101)
+    errors = [np.array([0.0, 0.0, 0.3]), np.array([0.1, 0.0, -0.4]),
+              np.array([-0.1, 0.05, 0.2])]
+    twists = MidSweepTwist()
+    stamps = [0, 200_000_000, 400_000_000]
+    truth = [step_of_twist(true, k * 0.2) for k in range(3)]
+    poses = [se2.compose(pose, step_of_twist(-error, 0.1)) for pose, error in zip(truth, errors)]
+    previous = None
+    for stamp, pose, error in zip(stamps, poses, errors):
+        measured = (true if previous is None
+                    else twist_of_step(se2.relative(previous, pose), 0.2))
+        blended = twists.blended(measured, pose, _swept(stamp, true + error, times))
+        if previous is None:
+            np.testing.assert_array_equal(blended, measured)
+        else:
+            assert abs(measured[2] - true[2]) > 0.2  # the measured step carries both errors
+            between = (blended - (1.0 - MID_SWEEP_WEIGHT) * measured) / MID_SWEEP_WEIGHT
+            np.testing.assert_allclose(between, true, atol=0.02)
+        previous = pose
+    twists.forget()
+    assert np.array_equal(twists.blended(true, poses[0], _swept(600_000_000, true, times)),
+                          true)
+
+
+def test_step_of_twist_inverts_twist_of_step():
+    twist = np.array([0.7, -0.2, 1.3])
+    np.testing.assert_allclose(twist_of_step(step_of_twist(twist, 0.2), 0.2), twist)
+    np.testing.assert_allclose(step_of_twist(np.array([1.0, 0.0, 0.0]), 0.5), [0.5, 0, 0])
 
 
 @pytest.mark.parametrize('stamp_at, reverse', [('first', False), ('last', False),

@@ -23,7 +23,7 @@ from laser_odom.core.motion.model import MotionModel
 from laser_odom.core.pipeline.announce import say_why
 from laser_odom.core.pipeline.estimate import OdometryEstimate, UNKNOWN_TWIST_VARIANCE
 from laser_odom.core.preprocess.deskew import (
-    deskew_change, deskewed, sweeps_after_stamp, SweepTwist, twist_of_step)
+    deskew_change, deskewed, MidSweepTwist, sweeps_after_stamp, SweepTwist, twist_of_step)
 from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
 from laser_odom.core.registration.acceptance import judge_again, judge_match
 from laser_odom.core.registration.map_registrar import JudgedMatch, MapRegistrar
@@ -93,6 +93,7 @@ class OdometryPipeline:
         self.untrusted = 'reset'
         self.motion.reset()
         self.sweep_twist = SweepTwist()
+        self.mid_sweep_twist = MidSweepTwist()
         if self.map_registrar is not None:
             self.map_registrar.reset()
 
@@ -299,6 +300,7 @@ class OdometryPipeline:
             # later (correct) match a large correction, and the odometry would run away
             # on the prediction. The next match starts from rest, untrusted.
             self.motion.reset()
+            self.mid_sweep_twist.forget()
             self.untrusted = 'rejected'
         elif registration.match.extra.get('poor_fit'):
             # Even the widened search found no pose that fits well: the step taken is a
@@ -357,10 +359,14 @@ class OdometryPipeline:
         self.keyframe_deskewed = True
         reference_shift = deskew_change(self.keyframe, measured) if stale_reference else 0.0
         changed = max(reference_shift, deskew_change(current, measured)) > DESKEW_TOLERANCE
-        current_twist = measured
         if self.map_registrar is None:  # the map is not de-skewed with it: SweepTwist
             current_twist = self.sweep_twist.over_sweep(
                 measured, current.stamp_ns, sweep_dt, sweeps_after_stamp(current), changed)
+        else:  # poses anchored on the map: MidSweepTwist
+            current_twist = self.mid_sweep_twist.blended(
+                measured, se2.compose(self.keyframe_pose, verdict.pose), current)
+            changed = max(reference_shift,
+                          deskew_change(current, current_twist)) > DESKEW_TOLERANCE
         if not changed:
             return current, judged
         if reference_shift > DESKEW_TOLERANCE:
