@@ -98,6 +98,8 @@ def test_the_twist_between_mid_sweep_poses_ignores_the_de_skew_error_of_each_pos
     errors = [np.array([0.0, 0.0, 0.3]), np.array([0.1, 0.0, -0.4]),
               np.array([-0.1, 0.05, 0.2])]
     twists = MidSweepTwist()
+    prediction = np.array([0.4, 0.0, 0.9])
+    assert np.array_equal(twists.predicted(prediction), prediction)
     stamps = [0, 200_000_000, 400_000_000]
     truth = [step_of_twist(true, k * 0.2) for k in range(3)]
     poses = [se2.compose(pose, step_of_twist(-error, 0.1)) for pose, error in zip(truth, errors)]
@@ -112,8 +114,11 @@ def test_the_twist_between_mid_sweep_poses_ignores_the_de_skew_error_of_each_pos
             assert abs(measured[2] - true[2]) > 0.2  # the measured step carries both errors
             between = (blended - (1.0 - MID_SWEEP_WEIGHT) * measured) / MID_SWEEP_WEIGHT
             np.testing.assert_allclose(between, true, atol=0.02)
+            # The next scan is de-skewed with it before its first match.
+            np.testing.assert_array_equal(twists.predicted(prediction), blended)
         previous = pose
     twists.forget()
+    assert np.array_equal(twists.predicted(prediction), prediction)
     assert np.array_equal(twists.blended(true, poses[0], _swept(600_000_000, true, times)),
                           true)
 

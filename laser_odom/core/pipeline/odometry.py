@@ -264,6 +264,9 @@ class OdometryPipeline:
         guess = se2.relative(self.keyframe_pose, se2.compose(self.pose, guess_step))
         sweep_dt = self.motion.effective_dt(dt)
         sweep_twist = twist_of_step(guess_step, sweep_dt)
+        if (self.map_registrar is not None and not untrusted
+                and self.config.motion.prior == 'constant_velocity'):
+            sweep_twist = self.mid_sweep_twist.predicted(sweep_twist)
         current = deskewed(current, sweep_twist)
         if not self.keyframe_deskewed and deskew_change(self.keyframe, sweep_twist) > 0.0:
             self.keyframe = deskewed(self.keyframe, sweep_twist)  # its sweep: this step

@@ -264,7 +264,7 @@ de-skewing against the local map (:class:`MidSweepTwist`)."""
 
 
 class MidSweepTwist:
-    """The twist a scan is de-skewed with against the local map, once matched.
+    """The twist a scan is de-skewed with against the local map.
 
     Against the map each pose is anchored on the map, and a match absorbs a de-skew
     twist that is off by ``e`` as a rotation and shift of the cloud about its mean beam
@@ -281,22 +281,27 @@ class MidSweepTwist:
     scan was matched with, does not carry ``e`` to first order (Dellenbach et al.,
     CT-ICP, ICRA 2022, estimate a scan's pose at its start and end for the same
     reason). So the twist between consecutive mid-sweep poses has no loop, but lags
-    the sweep by half a step and carries both poses' noise; the scan is de-skewed with
-    the mean of it and the measured twist (:data:`MID_SWEEP_WEIGHT`), which halves the
-    loop's gain. Measured with nicp, imls and plicp in the simulated hall and campus
-    (3 seeds, 3 copies with 1 mm of range noise each; failed steps, median 50 m drift):
+    the sweep by half a step and carries both poses' noise. After its first match a
+    scan is de-skewed with the mean of it and the measured twist
+    (:data:`MID_SWEEP_WEIGHT`, :meth:`blended`), which halves the loop's gain; the next
+    scan is de-skewed with that same twist before its first match, in place of the
+    constant-velocity prediction's, the last matched step's (:meth:`predicted`).
 
-    - fast hall: 123 -> 31 failed, drift 3.3-5.3 % -> 0.3-1.9 %;
-    - slow hall: plicp drift 3.4 -> 0.08 %, nicp and imls 0.3 -> 0.1 %;
-    - fast campus (a 270 deg scanner, where the loop is damped): 83 -> 101 failed, all
-      in one turn into open ground where both fail, drift 0.6-2.1 % -> 0.7-1.4 %;
-    - the de-skew grid's 5 Hz 360 deg scanners (LDS-01, RPLidar A1; the 270 deg and
-      faster ones unchanged): 40 -> 10 failed.
+    Measured with nicp, imls and plicp in the simulated hall and campus, against the
+    map (3 seeds, 3 copies with 1 mm of range noise each; failed steps, then the
+    matchers' median 50 m drift), before -> after:
 
-    The twist between mid-sweep poses alone cut the fast hall's failures too (to 50) but
-    doubled the fast campus's (83 -> 160); weights of 0.25 and 0.75 were each worse
-    somewhere than 0.5. Extrapolating it ahead, as :class:`SweepTwist` does scan to
-    scan, diverged.
+    - fast hall (360 deg lidar): 123 -> 4 failed, drift 3.3-5.3 % -> 0.10-0.21 %;
+    - fast campus (270 deg): 83 -> 5 failed (plicp), drift 0.6-2.1 % -> 0.2-0.7 %;
+    - slow hall: plicp drift 3.4 -> 0.07 %, nicp and imls 0.3 -> 0.1 %; slow campus
+      0.06-0.14 -> 0.04 %; none failed before or after;
+    - the de-skew grid's 5 Hz 360 deg lidars (LDS-01, RPLidar A1; the 270 deg and
+      faster ones unchanged): 40 -> 11 failed.
+
+    Each half measured alone: after the first match only, fast hall 31 failed and fast
+    campus 101; the twist between mid-sweep poses alone, without the measured one, 50
+    and 160. Weights of 0.25 and 0.75 were each worse than 0.5 somewhere. Extrapolating
+    the twist ahead, as :class:`SweepTwist` does scan to scan, diverged.
     """
 
     def __init__(self) -> None:
@@ -306,6 +311,17 @@ class MidSweepTwist:
     def forget(self) -> None:
         """Drop the previous mid-sweep pose (a reset, a rejected match)."""
         self._previous: tuple[int, np.ndarray] | None = None
+        self._last: np.ndarray | None = None
+
+    def predicted(self, prediction: np.ndarray) -> np.ndarray:
+        """Return the twist to de-skew the next scan with before its first match.
+
+        The constant-velocity prediction's twist is the last matched step's, which
+        carries the de-skew error of the two map-anchored poses it joins; the twist the
+        last scan was de-skewed with (:meth:`blended`) carries half of it. Without one
+        (the first scans, after a rejection), ``prediction``.
+        """
+        return prediction if self._last is None else self._last.copy()
 
     def blended(self, measured: np.ndarray, pose: np.ndarray, scan: ScanPoints
                 ) -> np.ndarray:
@@ -328,7 +344,8 @@ class MidSweepTwist:
         if not span > 0.0:
             return measured
         between = twist_of_step(se2.relative(previous[1], middle), span)
-        return MID_SWEEP_WEIGHT * between + (1.0 - MID_SWEEP_WEIGHT) * measured
+        self._last = MID_SWEEP_WEIGHT * between + (1.0 - MID_SWEEP_WEIGHT) * measured
+        return self._last.copy()
 
 
 def sweeps_after_stamp(scan: ScanPoints) -> bool:
