@@ -7,6 +7,7 @@ import pytest
 
 from laser_odom.core import se2
 from laser_odom.core.configuration.pipeline import PipelineConfig
+from laser_odom.core.evaluation.benchmark import SensorSpec
 from laser_odom.core.evaluation.metrics import evaluate
 from laser_odom.core.events import EventLog
 from laser_odom.core.pipeline.odometry import OdometryPipeline
@@ -254,3 +255,23 @@ def test_a_scan_with_bad_timing_takes_the_sensors_last_valid_timing():
     assert sum('time_increment' in line for line in said) == 1
     assert 'last valid time_increment is used' in said[0]
     assert _run(data, 'nicp', 'auto')[1] <= good[1] * 1.2 + 0.002  # no lasting drift
+
+
+def test_the_local_map_keeps_the_mid_sweep_twist_until_the_reference_changes():
+    """Swept scans matched against the map leave a de-skew twist for the next scan.
+
+    It belongs to poses anchored on that map: switching to scan-to-scan drops it, and
+    the next scan is de-skewed with the prediction's twist again.
+    """
+    data = SensorSpec('rplidar_a1', 'fast', 4.0, 'hall', 1, 5.0).generate('hall-4s')
+    config = PipelineConfig()
+    config.local_map.reference = 'local_map'
+    pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
+    for scan in data.scans[:10]:
+        pipeline.process(scan)
+    prediction = np.array([9.0, 9.0, 9.0])
+    last = pipeline.mid_sweep_twist.predicted(prediction)
+    assert not np.array_equal(last, prediction) and abs(last[0]) < 2.0
+    scan_config = PipelineConfig()
+    pipeline.configure(scan_config)
+    assert np.array_equal(pipeline.mid_sweep_twist.predicted(prediction), prediction)

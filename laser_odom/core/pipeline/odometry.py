@@ -146,6 +146,7 @@ class OdometryPipeline:
             last = self.keyframe
             at_pose = last is not None and np.array_equal(self.keyframe_pose, self.pose)
         self.map_registrar = self._map_registrar(config)
+        self.mid_sweep_twist.forget()  # its poses were anchored on the old reference
         if not at_pose:
             self.reset(self.pose, self.pose_covariance)
         elif self.map_registrar is not None:
