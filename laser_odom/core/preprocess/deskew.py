@@ -278,9 +278,9 @@ class MidSweepTwist:
     loop: it is de-skewed again with the same measured twist.
 
     The pose at the middle of the sweep, ``pose exp(t_m xi)`` with the twist ``xi`` the
-    scan was matched with, does not carry ``e`` to first order (Dellenbach et al.,
-    CT-ICP, ICRA 2022, estimate a scan's pose at its start and end for the same
-    reason). So the twist between consecutive mid-sweep poses has no loop, but lags
+    scan was matched with, does not carry ``e`` to first order (CT-ICP, Dellenbach et
+    al., ICRA 2022, likewise poses a scan within its sweep, at its start and end,
+    rather than at one instant). So the twist between consecutive mid-sweep poses has no loop, but lags
     the sweep by half a step and carries both poses' noise. After its first match a
     scan is de-skewed with the mean of it and the measured twist
     (:data:`MID_SWEEP_WEIGHT`, :meth:`blended`), which halves the loop's gain; the next
@@ -317,9 +317,9 @@ class MidSweepTwist:
         """Return the twist to de-skew the next scan with before its first match.
 
         The constant-velocity prediction's twist is the last matched step's, which
-        carries the de-skew error of the two map-anchored poses it joins; the twist the
-        last scan was de-skewed with (:meth:`blended`) carries half of it. Without one
-        (the first scans, after a rejection), ``prediction``.
+        carries the de-skew error of the two map-anchored poses it joins; the last
+        scan's blended twist (:meth:`blended`) carries half of it. Without one (the
+        first scans, after a rejection), ``prediction``.
         """
         return prediction if self._last is None else self._last.copy()
 
