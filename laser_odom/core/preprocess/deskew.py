@@ -280,9 +280,9 @@ class MidSweepTwist:
     The pose at the middle of the sweep, ``pose exp(t_m xi)`` with the twist ``xi`` the
     scan was matched with, does not carry ``e`` to first order (CT-ICP, Dellenbach et
     al., ICRA 2022, likewise poses a scan within its sweep, at its start and end,
-    rather than at one instant). So the twist between consecutive mid-sweep poses has no loop, but lags
-    the sweep by half a step and carries both poses' noise. After its first match a
-    scan is de-skewed with the mean of it and the measured twist
+    rather than at one instant). So the twist between consecutive mid-sweep poses has
+    no loop, but lags the sweep by half a step and carries both poses' noise. After its
+    first match a scan is de-skewed with the mean of it and the measured twist
     (:data:`MID_SWEEP_WEIGHT`, :meth:`blended`), which halves the loop's gain; the next
     scan is de-skewed with that same twist before its first match, in place of the
     constant-velocity prediction's, the last matched step's (:meth:`predicted`).
