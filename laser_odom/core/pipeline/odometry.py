@@ -22,6 +22,7 @@ from laser_odom.core.matchers import matcher_class, ScanMatcher
 from laser_odom.core.motion.model import MotionModel
 from laser_odom.core.pipeline.announce import say_why
 from laser_odom.core.pipeline.estimate import OdometryEstimate, UNKNOWN_TWIST_VARIANCE
+from laser_odom.core.pipeline.reconfigure import LiveReconfiguration
 from laser_odom.core.preprocess.deskew import (
     deskew_change, deskewed, MidSweepTwist, sweeps_after_stamp, SweepTwist, twist_of_step)
 from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
@@ -39,8 +40,12 @@ DESKEW_TOLERANCE = 0.02
 [m] (a bound over the sweep; below it the twist differs by less than matching noise)."""
 
 
-class OdometryPipeline:
-    """Scan-to-scan (or scan-to-keyframe) laser odometry, independent of ROS."""
+class OdometryPipeline(LiveReconfiguration):
+    """Scan-to-scan (or scan-to-keyframe, or scan-to-map) laser odometry, independent of ROS.
+
+    New settings take effect from the next scan on (:meth:`configure`, in
+    :class:`.reconfigure.LiveReconfiguration`).
+    """
 
     def __init__(self, config: PipelineConfig | None = None,
                  matcher: ScanMatcher | None = None, events: EventLog | None = None) -> None:
@@ -96,64 +101,6 @@ class OdometryPipeline:
         self.mid_sweep_twist = MidSweepTwist()
         if self.map_registrar is not None:
             self.map_registrar.reset()
-
-    def set_matcher(self, matcher: ScanMatcher) -> None:
-        """Switch the matcher; the pose and the reference scan are kept."""
-        if matcher.name != self.matcher.name:
-            self.registrar.usual.clear()
-        self.matcher = matcher
-        self.config.matcher = matcher.name
-        self.config.matcher_config = matcher.config
-
-    def configure(self, config: PipelineConfig) -> None:
-        """Apply new settings from the next scan on, keeping the pose (live reconfiguration).
-
-        A new matcher or matcher setting replaces the matcher (:meth:`set_matcher`). A new
-        laser mounting changes every base-frame point, so the reference scan is dropped and
-        integration restarts from the current pose. A new ``reference`` or local-map
-        setting starts the map again from the last scan (:meth:`_switch_reference`);
-        other settings keep the reference.
-        """
-        mounting_changed = config.mounting != self.config.mounting
-        map_changed = config.local_map != self.config.local_map
-        matcher_config = config.resolved_matcher_config()
-        if config.matcher != self.matcher.name or matcher_config != self.matcher.config:
-            matcher = matcher_class(config.matcher)(matcher_config)
-        else:
-            matcher = self.matcher
-        self.config = config
-        self.set_matcher(matcher)
-        self.validator = ScanValidator(config.scan, config.mounting, self.events)
-        self.motion.config = config.motion
-        if mounting_changed:
-            self.map_registrar = self._map_registrar(config)
-            self.reset(self.pose, self.pose_covariance)
-        elif map_changed:
-            self._switch_reference(config)
-
-    def _switch_reference(self, config: PipelineConfig) -> None:
-        """Match against a new local map, or the previous scan, from the next scan on.
-
-        The last scan, at the current pose, is the first scan of the new map, or the
-        reference scan when the map is left; the motion to the next scan is matched
-        as usual. Without such a scan (none yet, or a keyframe behind the current
-        pose) integration restarts from the current pose.
-        """
-        if self.map_registrar is not None:  # the map's previous scan: at the current pose
-            last = self.map_registrar.map.previous_scan
-            at_pose = last is not None
-        else:
-            last = self.keyframe
-            at_pose = last is not None and np.array_equal(self.keyframe_pose, self.pose)
-        self.map_registrar = self._map_registrar(config)
-        self.mid_sweep_twist.forget()  # its poses were anchored on the old reference
-        if not at_pose:
-            self.reset(self.pose, self.pose_covariance)
-        elif self.map_registrar is not None:
-            self.map_registrar.restart(last, self.pose)
-            self.keyframe_prepared = False
-        else:
-            self._set_keyframe(last)
 
     def process(self, scan: LaserScan, prior_step: se2.Pose | None = None,
                 prior_yaw: float | None = None) -> OdometryEstimate | None:
