@@ -1,9 +1,9 @@
 """Live reconfiguration of the odometry pipeline: new settings from the next scan on.
 
-The node applies a ``ros2 param set`` (and the replay a parameter change) between two
-scans, keeping the pose: a new matcher replaces the matcher, a new mounting restarts
-integration, a new ``reference`` or local-map setting starts the map again from the
-last scan. A mixin of :class:`.odometry.OdometryPipeline`, kept apart from the
+The node applies a ``ros2 param set``, or a laser mounting that TF tells late, between
+two scans, keeping the pose: a new matcher replaces the matcher, a new mounting
+restarts integration, a new ``reference`` or local-map setting starts the map again
+from the last scan. A mixin of :class:`.odometry.OdometryPipeline`, kept apart from the
 per-scan path; its methods use the pipeline's state (settings, matcher, registrars,
 reference scan, local map) and its ``reset``.
 """
