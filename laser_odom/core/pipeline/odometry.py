@@ -300,22 +300,26 @@ class OdometryPipeline(LiveReconfiguration):
         and the current sweep when stamped at the last; the other sweep is predicted
         with the same twist (constant velocity). When the measured twist would move the
         current points - or those of a reference not yet de-skewed with a measured twist
-        - by more than :data:`DESKEW_TOLERANCE`, they are de-skewed with it and matched
-        again from the first match, which is kept if the second is rejected.
+        - by more than :data:`DESKEW_TOLERANCE`, they are de-skewed again and matched
+        again from the first match, which is kept if the second is rejected. The
+        reference takes the measured twist; the current scan the one over its own sweep:
+        extrapolated scan to scan (:class:`.deskew.SweepTwist`), from mid-sweep poses
+        against the map (:class:`.deskew.MidSweepTwist`), which then decides whether it
+        matters.
         """
         verdict, reference = judged.verdict, judged.reference
-        step = se2.relative(self.pose, se2.compose(self.keyframe_pose, verdict.pose))
-        measured = twist_of_step(step, sweep_dt)
+        matched_pose = se2.compose(self.keyframe_pose, verdict.pose)
+        measured = twist_of_step(se2.relative(self.pose, matched_pose), sweep_dt)
         stale_reference = not self.keyframe_deskewed
         self.keyframe_deskewed = True
         reference_shift = deskew_change(self.keyframe, measured) if stale_reference else 0.0
-        changed = max(reference_shift, deskew_change(current, measured)) > DESKEW_TOLERANCE
         if self.map_registrar is None:  # the map is not de-skewed with it: SweepTwist
+            changed = max(reference_shift,
+                          deskew_change(current, measured)) > DESKEW_TOLERANCE
             current_twist = self.sweep_twist.over_sweep(
                 measured, current.stamp_ns, sweep_dt, sweeps_after_stamp(current), changed)
         else:  # poses anchored on the map: MidSweepTwist
-            current_twist = self.mid_sweep_twist.blended(
-                measured, se2.compose(self.keyframe_pose, verdict.pose), current)
+            current_twist = self.mid_sweep_twist.blended(measured, matched_pose, current)
             changed = max(reference_shift,
                           deskew_change(current, current_twist)) > DESKEW_TOLERANCE
         if not changed:
