@@ -275,3 +275,23 @@ def test_the_local_map_keeps_the_mid_sweep_twist_until_the_reference_changes():
     scan_config = PipelineConfig()
     pipeline.configure(scan_config)
     assert np.array_equal(pipeline.mid_sweep_twist.predicted(prediction), prediction)
+
+
+def test_a_missing_wheel_odometry_prior_de_skews_as_the_constant_velocity_does():
+    """With ``prior: odom`` and no wheel odometry the constant velocity stands in.
+
+    Against the map its guess is then de-skewed with the mid-sweep twist, as with
+    ``prior: constant_velocity``: the two runs are the same step for step. (Before,
+    the configured prior was asked, and the stand-in took the prediction's twist.)
+    """
+    data = SensorSpec('rplidar_a1', 'fast', 4.0, 'hall', 1, 5.0).generate('hall-4s')
+    poses = {}
+    for prior in ('constant_velocity', 'odom'):
+        config = PipelineConfig()
+        config.local_map.reference = 'local_map'
+        config.motion.prior = prior
+        pipeline = OdometryPipeline(config, events=EventLog(lambda message: None))
+        poses[prior] = np.array([pipeline.process(scan).pose for scan in data.scans[:12]])
+        assert pipeline.motion.guess_source == 'constant_velocity', prior
+    assert pipeline.counters['prior_missing'] == 11
+    np.testing.assert_array_equal(poses['odom'], poses['constant_velocity'])

@@ -31,6 +31,7 @@ def test_motion_model_predicts_from_the_configured_prior():
             assert predicted.shape == (3,)
             np.testing.assert_allclose(predicted, guess, atol=1e-12, err_msg=prior)
             assert counters['prior_missing'] == 0, prior
+            assert model.guess_source == prior
     for prior in ('odom', 'imu'):
         model = motion_model(prior)
         model.velocity = velocity.copy()
@@ -38,6 +39,7 @@ def test_motion_model_predicts_from_the_configured_prior():
         for missing_step, missing_yaw in ((None, None), (se2.pose(math.nan), math.nan)):
             predicted = model.predict(0.1, missing_step, missing_yaw, counters)
             np.testing.assert_allclose(predicted, [0.05, -0.02, 0.03], atol=1e-12)
+            assert model.guess_source == 'constant_velocity'  # it stands in
         assert counters['prior_missing'] == 2, prior
         np.testing.assert_allclose(model.predict(0.1), [0.05, -0.02, 0.03], atol=1e-12)
         assert counters['prior_missing'] == 2  # no counters given: nothing counted
@@ -54,6 +56,7 @@ def test_motion_model_predicts_nothing_over_a_gap_longer_than_max_scan_gap():
         if prior != 'odom':
             np.testing.assert_array_equal(
                 model.predict(0.5 + 1e-9, se2.pose(0.5, 0.0, 0.1), 0.1), [0.0, 0.0, 0.0])
+            assert model.guess_source == 'none'
 
 
 def test_wheel_odometry_is_used_over_a_gap_of_any_length():

@@ -40,6 +40,7 @@ class MotionModel:
     def reset(self) -> None:
         """Forget the velocity (the robot is assumed at rest)."""
         self.velocity = np.zeros(3)
+        self.guess_source = 'none'
 
     def forget_intervals(self) -> None:
         """Forget the sensor period too (a new sensor or a restarted clock)."""
@@ -93,21 +94,31 @@ class MotionModel:
     def predict(self, dt: float, prior_step: se2.Pose | None = None,
                 prior_yaw: float | None = None,
                 counters: Counter[str] | None = None) -> se2.Pose:
-        """Return the predicted motion (base frame of the previous scan) over ``dt``."""
+        """Return the predicted motion (base frame of the previous scan) over ``dt``.
+
+        :attr:`guess_source` then names where it came from: ``none`` (no prior, or a
+        gap), ``odom``, ``imu`` (its yaw, the constant velocity's translation) or
+        ``constant_velocity`` - also when the configured odom or IMU prior is missing
+        and the constant velocity stands in.
+        """
         cfg = self.config
+        self.guess_source = 'none'
         if cfg.prior == 'none' or self.gap_exceeded(dt, prior_step):
             return se2.pose()
         constant_velocity = self.velocity * self.effective_dt(dt)
         if cfg.prior == 'odom':
             if prior_step is not None and se2.is_finite_pose(prior_step):
+                self.guess_source = 'odom'
                 return np.array(prior_step, dtype=float)
             if counters is not None:
                 counters['prior_missing'] += 1
         elif cfg.prior == 'imu':
             if prior_yaw is not None and np.isfinite(prior_yaw):
+                self.guess_source = 'imu'
                 return np.array([constant_velocity[0], constant_velocity[1], prior_yaw])
             if counters is not None:
                 counters['prior_missing'] += 1
+        self.guess_source = 'constant_velocity'
         return constant_velocity
 
     def update(self, step: se2.Pose, dt: float) -> None:

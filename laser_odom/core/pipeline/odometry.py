@@ -213,7 +213,7 @@ class OdometryPipeline(LiveReconfiguration):
         sweep_dt = self.motion.effective_dt(dt)
         sweep_twist = twist_of_step(guess_step, sweep_dt)
         if (self.map_registrar is not None and not untrusted
-                and self.config.motion.prior == 'constant_velocity'):
+                and self.motion.guess_source == 'constant_velocity'):
             sweep_twist = self.mid_sweep_twist.predicted(sweep_twist)
         current = deskewed(current, sweep_twist)
         if not self.keyframe_deskewed and deskew_change(self.keyframe, sweep_twist) > 0.0:
