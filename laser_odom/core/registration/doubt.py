@@ -94,6 +94,10 @@ class PredictionDoubt:
             self._misses.append((float(np.max(np.hypot(missed[:, 0], missed[:, 1]))),
                                  float(np.max(np.abs(se2.wrap_angle(missed[:, 2]))))))
 
+    def unproven(self) -> bool:
+        """Tell whether fewer than :data:`MIN_RECORD` trusted matches are on record."""
+        return len(self._misses) < MIN_RECORD
+
     def surprised(self) -> bool:
         """Tell whether the newest miss is far beyond the recent ones before it.
 
@@ -120,7 +124,7 @@ class PredictionDoubt:
         if linear >= config.max_correction_linear or angular >= config.max_correction_angular:
             return (f'a predicted step of {linear:.2f} m / {np.degrees(angular):.1f} deg, '
                     'beyond the correction gate: a stop would pass unseen')
-        if unproven and len(self._misses) < MIN_RECORD:
+        if unproven and self.unproven():
             return f'{len(self._misses)} trusted predictions since the last search'
         if self._misses:
             missed = np.max(np.array(self._misses), axis=0)

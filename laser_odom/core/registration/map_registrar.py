@@ -30,7 +30,7 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
-from laser_odom.core.matchers import ScanMatcher
+from laser_odom.core.matchers import MatchResult, ScanMatcher
 from laser_odom.core.registration.acceptance import judge_match, MatchVerdict
 from laser_odom.core.registration.local_map.reference import fits_usual, MapReference, MAX_REFUSED
 from laser_odom.core.registration.recovery import surface_fit
@@ -106,8 +106,9 @@ class MapRegistrar:
         From a trusted prediction the match against the map stands when it is clean
         (:func:`clean_match`); else the match against the previous scan when that is
         clean (counted as ``map_fallback``). When neither is, or the prediction itself
-        is in doubt, the previous scan finds the step as in scan mode and the map
-        refines it (:meth:`_register_doubted`). Only without a previous scan (the
+        is in doubt (also when the map's match went beyond the correction gate from a
+        prediction not yet proven, :func:`_overshot_unproven`), the previous scan finds
+        the step as in scan mode and the map refines it (:meth:`_register_doubted`). Only without a previous scan (the
         map just started) does the full registration (:meth:`.Registrar.register`)
         search the map's view. ``registrar`` is the one that matches against the map
         (it keeps the usual fit of map matches).
@@ -135,7 +136,8 @@ class MapRegistrar:
                     return self._second_opinion(matcher, previous, current, guess, config,
                                                 judged)
             if previous is not None:
-                if not registrar.doubted(local, guess, config, True):
+                if not (registrar.doubted(local, guess, config, True)
+                        or _overshot_unproven(registrar, local, guess, config)):
                     against_scan = self._clean_scan_match(matcher, previous, current, guess,
                                                           config)
                     if against_scan is not None:
@@ -364,6 +366,24 @@ class MapRegistrar:
         """Return a match against the previous scan, counted as ``map_fallback``."""
         self.events.count('map_fallback')
         return JudgedMatch(previous, self.scan_registrar, registration, verdict, False)
+
+
+def _overshot_unproven(registrar: Registrar, local: MatchResult | None, guess: se2.Pose,
+                       config: PipelineConfig) -> bool:
+    """Tell whether the map's match moved beyond the gate from a prediction not yet proven.
+
+    Fewer than :data:`.doubt.MIN_RECORD` trusted matches since the last untrusted one
+    back the prediction, and the match against the map from it went farther than
+    ``max_correction_*``: it is the prediction that is in doubt, so the previous
+    scan's match from that same prediction is no second opinion. fr079 every 10th
+    scan at 10 Hz, nicp, the second step: the map's match (1.0 m, the true step) went
+    beyond the gate from a prediction of rest, and the previous scan's match from
+    rest, 0.33 m backwards, was published as clean. The previous scan then searches,
+    as in scan mode (:meth:`MapRegistrar._register_doubted`).
+    """
+    return (config.search.global_search == 'recover' and local is not None
+            and registrar.doubt.unproven()
+            and registrar.local_failure(local, guess, config, True) == 'large_correction')
 
 
 def clean_match(registration: Registration, verdict: MatchVerdict) -> bool:
