@@ -30,13 +30,14 @@ import numpy as np
 from laser_odom.core import se2
 from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
-from laser_odom.core.matchers import MatchResult, ScanMatcher
+from laser_odom.core.matchers import ScanMatcher
 from laser_odom.core.registration.acceptance import judge_match, MatchVerdict
 from laser_odom.core.registration.local_map.reference import fits_usual, MapReference, MAX_REFUSED
+from laser_odom.core.registration.map_judging import (
+    clean_match, match_rank, overshot_unproven, steps_agree)
 from laser_odom.core.registration.recovery import surface_fit
 from laser_odom.core.registration.registrar import Registrar, Registration
 from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
-from laser_odom.core.uncertainty.pose_uncertainty import CHI2_3DOF_999, nees
 
 MAP_EVENTS = ('map_fallback', 'map_restarted', 'map_disputed', 'map_surprised')
 """Counted events of map matching: a step taken from the previous scan because it
@@ -50,9 +51,6 @@ prediction by far more than usual and was checked against the previous scan
 SURPRISE_FIT_SIGMA = 0.05
 """Kernel width [m] of the surface fit that settles a surprise: the two steps it tells
 apart differ by decimetres (:meth:`MapRegistrar._settle_surprise`)."""
-
-STATUS_RANK = {'rejected': 0, 'degenerate': 1, 'matched': 2}
-"""Order of the verdicts, worst first."""
 
 
 class JudgedMatch(NamedTuple):
@@ -107,11 +105,11 @@ class MapRegistrar:
         (:func:`clean_match`); else the match against the previous scan when that is
         clean (counted as ``map_fallback``). When neither is, or the prediction itself
         is in doubt (also when the map's match went beyond the correction gate from a
-        prediction not yet proven, :func:`_overshot_unproven`), the previous scan finds
-        the step as in scan mode and the map refines it (:meth:`_register_doubted`). Only without a previous scan (the
-        map just started) does the full registration (:meth:`.Registrar.register`)
-        search the map's view. ``registrar`` is the one that matches against the map
-        (it keeps the usual fit of map matches).
+        prediction not yet proven, :func:`overshot_unproven`), the previous scan finds
+        the step as in scan mode and the map refines it (:meth:`_register_doubted`).
+        Only without a previous scan (the map just started) does the full registration
+        (:meth:`.Registrar.register`) search the map's view. ``registrar`` is the one
+        that matches against the map (it keeps the usual fit of map matches).
         """
         previous = self.map.previous_scan
         scale = current.length_scale
@@ -137,7 +135,7 @@ class MapRegistrar:
                                                 judged)
             if previous is not None:
                 if not (registrar.doubted(local, guess, config, True)
-                        or _overshot_unproven(registrar, local, guess, config)):
+                        or overshot_unproven(registrar, local, guess, config)):
                     against_scan = self._clean_scan_match(matcher, previous, current, guess,
                                                           config)
                     if against_scan is not None:
@@ -366,54 +364,3 @@ class MapRegistrar:
         """Return a match against the previous scan, counted as ``map_fallback``."""
         self.events.count('map_fallback')
         return JudgedMatch(previous, self.scan_registrar, registration, verdict, False)
-
-
-def _overshot_unproven(registrar: Registrar, local: MatchResult | None, guess: se2.Pose,
-                       config: PipelineConfig) -> bool:
-    """Tell whether the map's match moved beyond the gate from a prediction not yet proven.
-
-    Fewer than :data:`.doubt.MIN_RECORD` trusted matches since the last untrusted one
-    back the prediction, and the match against the map from it went farther than
-    ``max_correction_*``: it is the prediction that is in doubt, so the previous
-    scan's match from that same prediction is no second opinion. fr079 every 10th
-    scan at 10 Hz, nicp, the second step: the map's match (1.0 m, the true step) went
-    beyond the gate from a prediction of rest, and the previous scan's match from
-    rest, 0.33 m backwards, was published as clean. The previous scan then searches,
-    as in scan mode (:meth:`MapRegistrar._register_doubted`).
-    """
-    return (config.search.global_search == 'recover' and local is not None
-            and registrar.doubt.unproven()
-            and registrar.local_failure(local, guess, config, True) == 'large_correction')
-
-
-def clean_match(registration: Registration, verdict: MatchVerdict) -> bool:
-    """Tell whether a match is accepted with nothing to doubt.
-
-    Matched (not degenerate, not rejected), and neither the match from the prediction
-    failed nor did another pose fit alike.
-    """
-    return (verdict.status == 'matched' and not registration.local_failure
-            and not registration.alternatives)
-
-
-def match_rank(registration: Registration, verdict: MatchVerdict) -> tuple[int, bool]:
-    """Return how good a judged match is: its status, then whether it is clean."""
-    return STATUS_RANK[verdict.status], clean_match(registration, verdict)
-
-
-def steps_agree(found: MatchVerdict, refined: MatchVerdict, map_scale: float) -> bool:
-    """Tell whether a step refined on the map agrees with the step found against the scan.
-
-    Both measure the same step; their difference ``d`` is weighed by the sum of their
-    published covariances (the map's scaled by ``map_covariance_scale``, as
-    :func:`.pose_uncertainty.step_error` publishes it): ``d^T (P1 + P2)^-1 d``
-    (:func:`.pose_uncertainty.nees`) within the 99.9 % chi-square bound. The two share
-    the current scan's noise, so the test is lenient. A refinement that moved a clean
-    match by more slid into another minimum of the map (measured on intel's keyframes:
-    0.5 m along a corridor, silently).
-    """
-    covariance = np.asarray(found.covariance) + map_scale * np.asarray(refined.covariance)
-    try:
-        return nees(np.asarray(refined.pose) - found.pose, covariance) <= CHI2_3DOF_999
-    except np.linalg.LinAlgError:
-        return False
