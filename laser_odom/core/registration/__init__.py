@@ -6,8 +6,8 @@ trusted prediction is checked against the global search), ``recovery`` (search,
 refine the peaks, choose by the fit), ``rejection`` (the rules a match is rejected
 by), ``acceptance`` (accept, correct for ambiguity and degeneracy, or reject),
 ``map_registrar`` (registration against the local map, the previous scan as the
-second opinion), ``map_judging`` (the tests it decides by) and ``local_map`` (the map: cells,
-ray-cast view, which scans join it).
+second opinion), ``map_judging`` (the tests it decides by) and ``local_map`` (the
+map: cells, ray-cast view, which scans join it).
 
 May import: ``se2``, ``events``, ``parameters``, ``scan``, ``uncertainty``, ``search``,
 ``matchers``, ``configuration``, ``motion``.
