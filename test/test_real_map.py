@@ -66,15 +66,12 @@ FAST_SHORT: dict[tuple[str, str], dict[str, str]] = {
     ('plicp', 'fr079/10-fast'): {'ATE': 'map 10.3 m, scan 6.5 m (9 and 7 failed steps of '
                                         '479, 1 m and up to 90 deg apart): a failed step '
                                         'stays in the map'},
-    ('nicp', 'intel-kf-fast'): {'failed steps': '6 against 5', 'silent': '1 against 0'},
-    ('imls', 'fr079/10-fast'): {
-        'failed steps': '10 against 9',
-        'silent': '1 against 0: refined on the map surfaces (without: 9 and 0)'},
 }
 """On the fast-robot logs as received: where map mode does worse than scan mode (issue
 37 is open on these; before, intel-kf-fast failed 26/17/29 steps in map mode against
-21/8/12 in scan mode; nicp on fr079/10-fast 11 (1 silent) against 10 until the fallback
-stopped taking the previous scan's match from an unproven prediction the map overshot)."""
+21/8/12 in scan mode; nicp and imls on fr079/10-fast 11 and 10 (1 silent each) against
+10 and 9, intel-kf-fast nicp 6 (1) against 5, until a map match that moved far from an
+unproven prediction was checked by the search, map_judging.overshot_unproven)."""
 
 DOCUMENTED_COPY = 1
 """The seed of the documented copy a test runs (``laser_odom_bench --perturb``: 1..N)."""

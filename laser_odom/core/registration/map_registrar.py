@@ -104,9 +104,9 @@ class MapRegistrar:
         From a trusted prediction the match against the map stands when it is clean
         (:func:`clean_match`); else the match against the previous scan when that is
         clean (counted as ``map_fallback``). When neither is, or the prediction itself
-        is in doubt (also when the map's match went beyond the correction gate from a
-        prediction not yet proven, :func:`overshot_unproven`), the previous scan finds
-        the step as in scan mode and the map refines it (:meth:`_register_doubted`).
+        is in doubt (also when the map's match moved far from a prediction not yet
+        proven, :func:`overshot_unproven`), the previous scan finds the step as in scan
+        mode and the map refines it (:meth:`_register_doubted`).
         Only without a previous scan (the map just started) does the full registration
         (:meth:`.Registrar.register`) search the map's view. ``registrar`` is the one
         that matches against the map (it keeps the usual fit of map matches).
@@ -124,6 +124,10 @@ class MapRegistrar:
                 verdict = judge_match(registration, guess, config, scale)
                 if clean_match(registration, verdict):
                     judged = JudgedMatch(view, registrar, registration, verdict)
+                    if previous is not None and overshot_unproven(registrar, local, guess,
+                                                                  config):
+                        return self._register_doubted(matcher, registrar, view, previous,
+                                                      current, guess, config)
                     if (matcher.config.map_surprise_check and previous is not None
                             and registrar.doubt.surprised()):
                         return self._settle_surprise(matcher, previous, current, guess,
