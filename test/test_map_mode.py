@@ -350,3 +350,30 @@ def test_a_robot_that_sets_off_fast_is_found_by_the_search_not_the_fallback(
         step = se2.relative(estimates[k - 1].pose, estimates[k].pose)
         truth = se2.relative(poses[k - 1], poses[k])
         assert np.hypot(*(step[:2] - truth[:2])) < 0.05, (k, step, truth)
+
+
+def test_a_map_match_far_from_an_unproven_prediction_is_checked():
+    # Checked: fewer than MIN_RECORD trusted matches back the prediction and the match
+    # corrected it by more than MISS_FRACTION of the gate (0.25 m or 14 deg by default).
+    from laser_odom.core.events import EventLog as Log
+    from laser_odom.core.matchers import MatchResult
+    from laser_odom.core.registration.doubt import MIN_RECORD
+    from laser_odom.core.registration.map_judging import overshot_unproven
+    from laser_odom.core.registration.registrar import Registrar
+
+    def match(pose) -> MatchResult:
+        return MatchResult(np.asarray(pose, dtype=float), True, 5, 0.9, 0.01, np.eye(3),
+                           np.eye(3), correspondences=300)
+
+    settings = PipelineConfig()
+    guess = se2.pose(0.5, 0.0, 0.0)
+    registrar = Registrar(Log(lambda message: None))
+    assert overshot_unproven(registrar, match(se2.pose(0.8, 0.0, 0.0)), guess, settings)
+    assert overshot_unproven(registrar, match(se2.pose(0.5, 0.0, 0.3)), guess, settings)
+    assert not overshot_unproven(registrar, match(se2.pose(0.7, 0.0, 0.2)), guess, settings)
+    assert not overshot_unproven(registrar, None, guess, settings)
+    off = replace(settings, search=replace(settings.search, global_search='off'))
+    assert not overshot_unproven(registrar, match(se2.pose(0.8, 0.0, 0.0)), guess, off)
+    for _ in range(MIN_RECORD):
+        registrar.doubt.record(guess, guess)
+    assert not overshot_unproven(registrar, match(se2.pose(0.8, 0.0, 0.0)), guess, settings)
