@@ -65,6 +65,12 @@ SURPRISE_FLOOR = (0.02, 0.02)
 millimetre do not make a centimetre's correction a surprise."""
 
 
+def missed_far(linear: float, angular: float, config: AcceptanceConfig) -> bool:
+    """Tell whether a prediction's miss [m, rad] exceeds :data:`MISS_FRACTION` of the gate."""
+    return bool(linear > MISS_FRACTION * config.max_correction_linear
+                or angular > MISS_FRACTION * config.max_correction_angular)
+
+
 class PredictionDoubt:
     """How far recent trusted predictions were from the steps matched: whether to doubt."""
 
@@ -128,8 +134,7 @@ class PredictionDoubt:
             return f'{len(self._misses)} trusted predictions since the last search'
         if self._misses:
             missed = np.max(np.array(self._misses), axis=0)
-            if (missed[0] > MISS_FRACTION * config.max_correction_linear
-                    or missed[1] > MISS_FRACTION * config.max_correction_angular):
+            if missed_far(missed[0], missed[1], config):
                 return (f'recent predictions missed by up to {missed[0]:.2f} m / '
                         f'{np.degrees(missed[1]):.1f} deg')
         return ''

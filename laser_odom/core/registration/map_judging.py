@@ -13,7 +13,7 @@ from laser_odom.core import se2
 from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.matchers import MatchResult
 from laser_odom.core.registration.acceptance import MatchVerdict
-from laser_odom.core.registration.doubt import MISS_FRACTION
+from laser_odom.core.registration.doubt import missed_far
 from laser_odom.core.registration.registrar import Registrar, Registration
 from laser_odom.core.uncertainty.pose_uncertainty import CHI2_3DOF_999, nees
 
@@ -42,11 +42,8 @@ def overshot_unproven(registrar: Registrar, local: MatchResult | None, guess: se
             and registrar.doubt.unproven()):
         return False
     correction = se2.relative(guess, local.pose)
-    acceptance = config.acceptance
-    return bool(np.hypot(correction[0], correction[1])
-                > MISS_FRACTION * acceptance.max_correction_linear
-                or abs(se2.wrap_angle(correction[2]))
-                > MISS_FRACTION * acceptance.max_correction_angular)
+    return missed_far(float(np.hypot(correction[0], correction[1])),
+                      abs(float(se2.wrap_angle(correction[2]))), config.acceptance)
 
 
 def clean_match(registration: Registration, verdict: MatchVerdict) -> bool:
