@@ -147,10 +147,11 @@ def _weakly_constrained(match: MatchResult, verdict: MatchVerdict,
     """Grow the covariance by what the evidence says the matcher's does not cover.
 
     ``surface_covariance`` in the match's extras is the spread of the search's score
-    surface beyond its grid (:mod:`laser_odom.core.uncertainty.evidence`). It is added; when it exceeds the
-    degeneracy threshold in some direction (a standard deviation above 5 cm by default)
-    the match is weakly constrained: reported ``degenerate`` (its covariance is ignorance
-    there, which compounds as independent) and flagged ``weak``.
+    surface beyond its grid (:mod:`laser_odom.core.uncertainty.evidence`). It is
+    added; when it exceeds the degeneracy threshold in some direction (a standard
+    deviation above 5 cm by default) the match is weakly constrained: reported
+    ``degenerate`` (its covariance is ignorance there, which compounds as independent)
+    and flagged ``weak``.
     """
     grown = match.extra.get('surface_covariance')
     if grown is None or not np.any(grown):
