@@ -123,11 +123,11 @@ class MapRegistrar:
             if passed:
                 verdict = judge_match(registration, guess, config, scale)
                 if clean_match(registration, verdict):
-                    judged = JudgedMatch(view, registrar, registration, verdict)
                     if previous is not None and overshot_unproven(registrar, local, guess,
                                                                   config):
                         return self._register_doubted(matcher, registrar, view, previous,
                                                       current, guess, config)
+                    judged = JudgedMatch(view, registrar, registration, verdict)
                     if (matcher.config.map_surprise_check and previous is not None
                             and registrar.doubt.surprised()):
                         return self._settle_surprise(matcher, previous, current, guess,
