@@ -33,8 +33,9 @@ SURPRISES = {'stop': se2.pose(0.0, 0.0, 0.0), 'side': se2.pose(0.0, 0.3, 0.0)}
 """What the robot does instead of the predicted step."""
 
 
-def surprise_step(matcher: str, surprise: np.ndarray, seed: int = 3):
-    """Drive six scans at :data:`CRUISE` down a corridor, then ``surprise``.
+def surprise_step(matcher: str, surprise: np.ndarray, seed: int = 3,
+                  cruise: np.ndarray = CRUISE):
+    """Drive six scans at ``cruise`` down a corridor, then ``surprise``.
 
     Return the last step's error, its estimate and the pipeline.
     """
@@ -42,7 +43,7 @@ def surprise_step(matcher: str, surprise: np.ndarray, seed: int = 3):
     rng = np.random.default_rng(seed)
     poses = [world.path.poses_at(np.array([30.0]))[0]]
     for _ in range(6):
-        poses.append(se2.compose(poses[-1], CRUISE))
+        poses.append(se2.compose(poses[-1], cruise))
     poses.append(se2.compose(poses[-1], surprise))
     pipeline = OdometryPipeline(PipelineConfig(matcher=matcher),
                                 events=EventLog(lambda message: None))
@@ -77,6 +78,43 @@ def test_a_fast_robot_that_steps_aside_is_found_or_announced(matcher):
     found = np.hypot(error[0], error[1]) < 0.03 and abs(error[2]) < math.radians(0.5)
     announced = nees(error, estimate.step_covariance) <= ANNOUNCED_NEES
     assert found or announced, (error, estimate.status, estimate.step_covariance)
+
+
+@pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
+def test_a_match_that_corrects_a_good_prediction_far_is_checked_by_the_search(matcher):
+    """A robot at 1 m/s that jumps to 4 m/s: the match corrects the prediction by 0.3 m.
+
+    The prediction is small and its record good (misses of millimetres), so it is not
+    in doubt; the correction, 15 times the usual miss, is a surprise
+    (:meth:`.doubt.PredictionDoubt.would_surprise`), and the search checks the match.
+    Before, such a match was taken unchecked, however far it slid.
+    """
+    from laser_odom.core.registration.doubt import MIN_RECORD
+
+    error, estimate, pipeline = surprise_step(matcher, se2.pose(0.4, 0.0, 0.0),
+                                              cruise=se2.pose(0.1, 0.0, 0.0))
+    # The first MIN_RECORD predictions were checked for their short record; the
+    # surprise is the one search more.
+    assert pipeline.counters['search_doubtful'] == MIN_RECORD + 1
+    assert np.hypot(error[0], error[1]) < 0.03, (error, estimate.status)
+    assert abs(error[2]) < math.radians(0.5), error
+
+
+def test_a_correction_far_beyond_the_recent_misses_surprises_before_it_is_recorded():
+    from laser_odom.core.registration.doubt import MIN_RECORD, PredictionDoubt
+
+    doubt = PredictionDoubt()
+    step = se2.pose(0.2, 0.0, 0.05)
+    for _ in range(MIN_RECORD - 1):
+        doubt.record(step, se2.compose(step, se2.pose(0.01, 0.0, 0.0)))
+    far = se2.compose(step, se2.pose(0.3, 0.0, 0.0))
+    assert doubt.would_surprise(step, far) == ''  # too short a record to judge
+    doubt.record(step, se2.compose(step, se2.pose(0.03, 0.0, 0.0)))
+    assert doubt.would_surprise(step, se2.compose(step, se2.pose(0.08, 0.0, 0.0))) == ''
+    assert '0.30 m' in doubt.would_surprise(step, far)  # 10x the largest miss (0.03 m)
+    turned = se2.compose(step, se2.pose(0.0, 0.0, 0.07))  # 3.5x the 0.02 rad floor
+    assert '4.0 deg' in doubt.would_surprise(step, turned)
+    assert len(list(doubt._misses)) == MIN_RECORD  # asking records nothing
 
 
 FAST_LOGS = ('fr079/5-fast', 'fr079/10-fast', 'intel-kf-fast')

@@ -187,8 +187,9 @@ class Registrar:
             if local is None:
                 local = self.local_match(matcher, reference, current, guess, True)
             failure = self.local_failure(local, guess, config, reference.virtual)
-            doubt = '' if failure or not verify else self.doubt.doubt(guess,
-                                                                      config.acceptance)
+            doubt = '' if failure or not verify else (
+                self.doubt.doubt(guess, config.acceptance)
+                or self.doubt.would_surprise(guess, local.pose))
             if (failure or doubt) and mode == 'recover':
                 registration = self._search(matcher, reference, current, guess, config,
                                             'local_failed' if failure else 'doubtful',
