@@ -1,5 +1,6 @@
 """PL-ICP: exact closed-form step, beam-order segments, exact recovery, robustness."""
 
+from dataclasses import replace
 import math
 from pathlib import Path
 
@@ -10,6 +11,8 @@ import yaml
 
 from laser_odom.core import se2
 from laser_odom.core.configuration.pipeline import pipeline_config_from_params
+from laser_odom.core.datasets import as_received, with_range_noise
+from laser_odom.core.evaluation.benchmark import SensorSpec, WORLD_SENSORS
 from laser_odom.core.matchers import create_matcher
 from laser_odom.core.matchers.plicp.matcher import PlicpConfig, rotation_candidates
 from laser_odom.core.matchers.plicp.segments import (
@@ -293,13 +296,20 @@ def test_pairs_take_the_closer_beam_neighbour_and_its_line():
 
 @pytest.mark.parametrize('when', [3.0, 20.0, 45.0])
 def test_exact_recovery_on_noise_free_rerendered_scans(when):
-    """The current scan is a real re-render at the moved pose: other beams, same walls."""
+    """The current scan is a real re-render at the moved pose: other beams, same walls.
+
+    Exact with Censi's two-point segment lines; lines fitted over 0.2 m of surface
+    (the default) bend around corners, a micrometre here.
+    """
     laser = LaserModel(noise_sigma=0.0)
     reference, current = scan_pair('office', office_pose(when), MOTION, laser)
-    result = create_matcher('plicp').match(reference, current, GUESS)
+    result = create_matcher('plicp', {'segment_window': 0.0}).match(reference, current, GUESS)
     assert result.converged
     assert pose_error(result.pose, MOTION)[0] < 1e-6
     assert pose_error(result.pose, MOTION)[1] < math.degrees(1e-6)
+    fitted = create_matcher('plicp').match(reference, current, GUESS)
+    assert fitted.converged and pose_error(fitted.pose, MOTION)[0] < 1e-4
+    assert pose_error(fitted.pose, MOTION)[1] < 0.01
 
 
 def test_fewer_iterations_than_icp_and_at_least_as_accurate():
@@ -355,9 +365,13 @@ def test_trimming_rejects_a_moving_person():
     assert pose_error(untrimmed.pose, motion)[0] > 5e-3
 
 
-@pytest.mark.parametrize('degrees', [15.0, 20.0])
+@pytest.mark.parametrize('degrees', [20.0, 25.0])
 def test_restart_recovers_a_large_rotation_error(degrees):
-    """A 180 deg scan, the guess 15-20 deg off: the first run fails, a restart does not."""
+    """A 180 deg scan, the guess 20-25 deg off: the first run fails, a restart does not.
+
+    (15 deg off the first run fails with two-point segment lines only: fitted ones reach
+    it without a restart.)
+    """
     reference, current = scan_pair('office', office_pose(10.0), MOTION, SEMICIRCLE)
     guess = MOTION + np.array([0.05, 0.0, math.radians(degrees)])
     plain = create_matcher('plicp', {'restart_residual': 0.0}).match(reference, current, guess)
@@ -542,3 +556,68 @@ def test_too_few_pairs_stop_the_loop_and_exactly_enough_do_not():
         reference, current, MOTION, coarse_keep_fraction=0.0, min_keep_fraction=1.0,
         max_keep_fraction=1.0, min_correspondences=kept + 1)
     assert not found and not converged and iterations == 1
+
+
+def test_segment_lines_take_the_direction_of_their_fitted_surface():
+    """A dense, noisy scanner (0.33 deg, 2 cm) in the office: segments lie along the walls."""
+    pose = office_pose(20.0)
+    dense = LaserModel(beams=811, fov=math.radians(270.0), noise_sigma=0.02)
+    exact = scan_to_points(render_scan('office', pose, replace(dense, noise_sigma=0.0)))
+    noisy = scan_to_points(render_scan('office', pose, dense, np.random.default_rng(1)))
+    truth = dict(zip(exact.beam_index, reference_segments(exact, 3, 0.5).table[:-1, 6:8]))
+    tilts = {}
+    for window in (0.0, 0.2):
+        table = reference_segments(noisy, 3, 0.5, 1.0, window).table[:-1, 6:8]
+        tilts[window] = np.degrees(np.array([
+            math.acos(min(abs(float(normal @ truth[beam])), 1.0))
+            for beam, normal in zip(noisy.beam_index, table)
+            if beam in truth and normal.any() and truth[beam].any()]))
+    # Two points a few centimetres apart with 2 cm of noise: tilted by tens of degrees.
+    assert np.median(tilts[0.0]) > 15.0, np.median(tilts[0.0])  # measured 25 deg
+    assert np.median(tilts[0.2]) < 8.0, np.median(tilts[0.2])  # measured 7 deg
+    # A view of the local map (virtual) already lies on fitted surfaces: left as it is.
+    virtual = ScanPoints(noisy.points, noisy.beam_index, noisy.ranges, virtual=True)
+    np.testing.assert_array_equal(reference_segments(virtual, 3, 0.5, 1.0, 0.2).table,
+                                  reference_segments(virtual, 3, 0.5, 1.0, 0.0).table)
+
+
+def test_between_two_long_walls_the_match_stays_on_the_true_step():
+    """The simulated campus, slow, seed 1, copy 1, scans 719-720 (plicp drifted 9 %).
+
+    Between two long walls, the step along them is constrained by a recess's short side
+    walls alone. With two-point segment lines the match slid 0.43 m back from a start on
+    the true step (every tilted segment pulls a little); with fitted lines it stays.
+    """
+    data = as_received(with_range_noise(SensorSpec(
+        WORLD_SENSORS['campus'], 'gentle', 144.2, 'campus', 1, 5.0).generate('campus'), 1))
+    reference, current = (scan_to_points(scan) for scan in data.scans[719:721])
+    poses = data.reference.poses[[np.argmin(np.abs(data.reference.stamps_ns - scan.stamp_ns))
+                                  for scan in data.scans[719:721]]]
+    true = se2.relative(poses[0], poses[1])
+    assert true[0] == pytest.approx(0.072, abs=0.001)
+    for start in (-0.03, 0.0, 0.03):
+        guess = true + np.array([start, 0.0, 0.0])
+        match = create_matcher('plicp').match(reference, current, guess)
+        assert abs(match.pose[0] - true[0]) < 0.02, (start, match.pose)
+    raw = create_matcher('plicp', {'segment_window': 0.0}).match(reference, current, true)
+    assert abs(raw.pose[0] - true[0]) > 0.3, raw.pose
+
+
+def test_a_coarse_phase_that_cycles_ends_as_the_fine_phase_does(real_log):
+    """Intel's keyframes 0.1 s apart, scan 835: an in-place turn of 33 deg.
+
+    Matched from the true step, the coarse phase swung by 5 cm between two pairings
+    (never below coarse_step) until the iteration cap, unconverged at 0.07 m residual;
+    a pairing that repeats ends it, and the fine phase converges.
+    """
+    data = as_received(real_log('intel-kf-fast'))
+    reference, current = (scan_to_points(scan) for scan in data.scans[834:836])
+    stamps = data.reference.stamps_ns
+    poses = data.reference.poses[[np.argmin(np.abs(stamps - scan.stamp_ns))
+                                  for scan in data.scans[834:836]]]
+    true = se2.relative(poses[0], poses[1])
+    match = create_matcher('plicp').match(reference, current, true)
+    assert match.converged and match.iterations < 50, match.iterations
+    assert match.residual < 0.01, match.residual
+    assert pose_error(match.pose, true)[0] < 0.1
+    assert pose_error(match.pose, true)[1] < 3.0

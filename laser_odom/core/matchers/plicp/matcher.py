@@ -114,6 +114,10 @@ class PlicpConfig(MatcherConfig):
         0.0, math.pi / 2)
     restart_candidates: int = param(
         4, 'Number of restart rotations tried.', 0, 20)
+    segment_window: float = param(
+        0.2, 'Length of surface [m] whose fitted direction each segment line of a real '
+        'reference scan takes (0: the direction between its two points, as Censi).',
+        0.0, 10.0)
     information_window: float = param(
         1.0, 'Length of surface [m] over which the normals used for the information '
         'matrix are fitted (a two-point segment normal is too noisy for it).', 0.01, 10.0)
@@ -156,7 +160,7 @@ class PlicpMatcher(ScanMatcher):
         if len(reference) < cfg.min_correspondences or len(current) < cfg.min_correspondences:
             return MatchResult.failure(guess, reason='too few points')
         segments = reference_segments(reference, cfg.max_beam_gap, cfg.max_segment_length,
-                                      cfg.information_window)
+                                      cfg.information_window, cfg.segment_window)
         huber = cfg.map_huber_sigma if reference.virtual else 0.0
         run = self._run(segments, reference.bearing_index, current, guess, huber)
         iterations = run.iterations if run is not None else 0

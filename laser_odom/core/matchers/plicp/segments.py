@@ -3,7 +3,9 @@
 Censi, "An ICP variant using a point-to-line metric", ICRA 2008, Sec. III: a current
 point is paired with the segment between its nearest reference point ``j1`` and the
 closer of ``j1``'s neighbours in the scan's beam order, and its error is the distance
-to the line through that segment. Everything per reference scan is computed once and
+to the line through that segment. The line's direction is fitted to the surface around
+the segment (``segment_window``), not taken from its two ends alone
+(:func:`_fit_segment_lines`). Everything per reference scan is computed once and
 cached in ``ScanPoints.cache`` (a scan is the current scan once and the reference
 once), so an iteration costs one nearest-neighbour search in the reference's bearing
 index and one table lookup, compiled into one kernel with the trimming and the normal
@@ -50,23 +52,32 @@ TABLE_COLUMNS = ('ux', 'uy', 'c', 'prev_nx', 'prev_ny', 'prev_offset', 'next_nx'
 
 
 def reference_segments(reference: ScanPoints, max_beam_gap: int,
-                       max_segment_length: float,
-                       information_window: float = 1.0) -> ReferenceSegments:
+                       max_segment_length: float, information_window: float = 1.0,
+                       segment_window: float = 0.0) -> ReferenceSegments:
     """Return the segments between beam-order neighbours of a reference scan (cached).
 
     Two consecutive valid points form a segment only if their beams are at most
     ``max_beam_gap`` apart (a few dropped readings) and the points are at most
     ``max_segment_length`` apart: a larger jump is a range discontinuity (an occluding
-    edge, a doorway), and the line between its ends lies on no surface.
+    edge, a doorway), and the line between its ends lies on no surface. With
+    ``segment_window`` > 0 a real scan's segment lines take the direction of the
+    surface fitted over that length around them (:func:`_fit_segment_lines`); a
+    virtual scan of the local map (``reference.virtual``) already lies on fitted
+    surfaces and keeps its segments.
     """
+    if reference.virtual:
+        segment_window = 0.0
     key = ('plicp_segments', int(max_beam_gap), float(max_segment_length),
-           float(information_window))
+           float(information_window), float(segment_window))
     cached = reference.cache.get(key)
     if cached is not None:
         return cached
     points = np.ascontiguousarray(reference.points, dtype=float).reshape(-1, 2)
     table, ok, length = _segment_table(points, np.asarray(reference.beam_index, np.int64),
                                        int(max_beam_gap), float(max_segment_length))
+    if segment_window > 0.0:
+        _fit_segment_lines(table, points, ok,
+                           surface_normals(points, length, ok, segment_window))
     result = ReferenceSegments(table, ok, surface_normals(points, length, ok,
                                                           information_window))
     reference.cache[key] = result
@@ -117,6 +128,42 @@ def _segment_table(points: np.ndarray, beam_index: np.ndarray, max_beam_gap: int
             table[j, 8] = normal[j, 0] * points[j, 0] + normal[j, 1] * points[j, 1]
         table[j, 9] = 1.0 if prev_ok or next_ok else 0.0
     return table, ok, length
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_segment_lines(table: np.ndarray, points: np.ndarray, segment_ok: np.ndarray,
+                       fitted: np.ndarray) -> None:
+    """Turn each segment's line to the direction of its fitted surface (in place).
+
+    The direction of a two-point segment carries the range noise of both ends: 2 cm
+    of noise over a 6 cm beam spacing (a 0.33 deg scanner at 10 m) tilts it by tens of
+    degrees, so along a direction the scene barely constrains (between two long walls)
+    every tilted segment pulls a little, and PL-ICP stops wherever the pulls cancel:
+    in the simulated campus it stopped 0.35 m from the true step from a start on it,
+    and 0.0 m from a start 2 cm away. The line through the segment's midpoint along
+    the mean of its ends' ``fitted`` surface normals (:func:`surface_normals`; one
+    end's where the other has none, the segment's own where neither has) has one
+    minimum there. Measured with plicp,
+    scan to scan, median 50 m drift: the simulated campus 1.5-4.4 -> 0.9-1.6 %, the
+    de-skew grid's office up to 9.3 -> 0.9 %, fr079 / MIT CSAIL / Intel 1.45 / 1.66 /
+    4.47 -> 1.04 / 1.20 / 4.02 % (5 copies with 1 mm range noise).
+    """
+    for j in range(points.shape[0] - 1):
+        if not segment_ok[j]:
+            continue
+        a, b = fitted[j], fitted[j + 1]
+        sign = 1.0 if a[0] * b[0] + a[1] * b[1] >= 0.0 else -1.0
+        nx, ny = a[0] + sign * b[0], a[1] + sign * b[1]
+        norm = math.hypot(nx, ny)
+        if norm == 0.0:
+            continue
+        nx, ny = nx / norm, ny / norm
+        if nx * table[j, 6] + ny * table[j, 7] < 0.0:  # the segment's own orientation
+            nx, ny = -nx, -ny
+        offset = 0.5 * (nx * (points[j, 0] + points[j + 1, 0])
+                        + ny * (points[j, 1] + points[j + 1, 1]))
+        table[j, 6], table[j, 7], table[j, 8] = nx, ny, offset
+        table[j + 1, 3], table[j + 1, 4], table[j + 1, 5] = nx, ny, offset
 
 
 @numba.njit(cache=True, nogil=True)

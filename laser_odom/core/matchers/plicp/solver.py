@@ -143,7 +143,10 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
     judged, instead of being trimmed for disagreeing with where it started. A phase
     ends on a step below the convergence thresholds or on a pairing (with its weights)
     seen before in it (the step depends only on them, so a repeat is a cycle - CSM's
-    loop detection); the iteration cap ends all. Returns whether enough pairs were
+    loop detection; the coarse phase once ran on to the cap in such a cycle, a 5 cm
+    swing that never fell below ``coarse_step``: intel's keyframes 0.1 s apart, an
+    in-place turn of 33 deg matched from the true step, unconverged at 0.07 m
+    residual); the iteration cap ends all. Returns whether enough pairs were
     found, the estimate, whether it converged, the iterations, the last kept pairs
     (current indices, moved points, lines, segment ids, weights) and the last step.
     """
@@ -175,12 +178,17 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
         updated = compose_poses(delta, estimate)
         step = relative_pose(estimate, updated)
         estimate = updated
-        if coarse:
-            coarse = not is_small_step(step, coarse_step, coarse_step)
-            continue
         repeated = False
         for previous in seen[:seen_count]:
             repeated = repeated or previous == signature
+        if coarse:
+            coarse = not (is_small_step(step, coarse_step, coarse_step) or repeated)
+            if coarse:
+                seen[seen_count] = signature
+                seen_count += 1
+            else:
+                seen_count = 0
+            continue
         if is_small_step(step, convergence_translation, convergence_rotation) or repeated:
             if not weighted:
                 converged = True
