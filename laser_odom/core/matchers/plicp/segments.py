@@ -143,10 +143,13 @@ def _fit_segment_lines(table: np.ndarray, points: np.ndarray, segment_ok: np.nda
     and 0.0 m from a start 2 cm away. The line through the segment's midpoint along
     the mean of its ends' ``fitted`` surface normals (:func:`surface_normals`; one
     end's where the other has none, the segment's own where neither has) has one
-    minimum there. Measured with plicp,
-    scan to scan, median 50 m drift: the simulated campus 1.5-4.4 -> 0.9-1.6 %, the
-    de-skew grid's office up to 9.3 -> 0.9 %, fr079 / MIT CSAIL / Intel 1.45 / 1.66 /
-    4.47 -> 1.04 / 1.20 / 4.02 % (5 copies with 1 mm range noise).
+    minimum there. Measured with plicp, scan to scan (with the coarse phase's cycle
+    check and the search's choice that came with it), 50 m drift median [worst] of 3
+    noise copies: the simulated campus 1.5-6.3 [2.3-10.1] -> 0.9-1.6 [0.9-1.6] %; the
+    de-skew grid's office (one run each) up to 9.3 -> 0.9 % (ust10lx), 3.3 -> 0.5 %
+    (tim571); fr079 / MIT CSAIL / Intel (5 copies) 1.45 / 1.66 / 4.47 -> 1.04 / 1.20 /
+    4.02 %, failed steps 16 (10 silent) -> 2 (2). In the hall, whose pillars are a
+    few points each, 30 -> 41 failed steps of 10 800, announced but for 2 (3 before).
     """
     for j in range(points.shape[0] - 1):
         if not segment_ok[j]:
