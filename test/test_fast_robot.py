@@ -119,13 +119,14 @@ def test_a_correction_far_beyond_the_recent_misses_surprises_before_it_is_record
 
 FAST_LOGS = ('fr079/5-fast', 'fr079/10-fast', 'intel-kf-fast')
 
-FAILED_GAP = {('fr079/5-fast', 'nicp'), ('fr079/10-fast', 'plicp'), ('fr079/10-fast', 'nicp'),
-              ('fr079/10-fast', 'imls'), ('intel-kf-fast', 'plicp'),
+FAILED_GAP = {('fr079/5-fast', 'nicp'), ('fr079/10-fast', 'nicp'), ('fr079/10-fast', 'imls'),
               ('intel-kf-fast', 'nicp')}
 """Where the default prior still fails 1-2 more steps than ``prior: none`` on the
 as-received scans (all announced): steps of 0.5-1.5 m and up to 90 deg in 0.1 s, where
 the search from the prediction and the one from rest choose differently among poses
-that fit poorly. Open: issue 38 asks for none."""
+that fit poorly. Open: issue 38 asks for none. plicp left it when its segment lines
+took their surface's direction (fr079/10-fast 7 -> 4 failed steps against 5 with no
+prior, intel-kf-fast 15 -> 8 against 11)."""
 
 
 @pytest.mark.parametrize('dataset', FAST_LOGS)
