@@ -181,20 +181,17 @@ def iterate(table: np.ndarray, sorted_points: np.ndarray, bearings: np.ndarray,
         repeated = False
         for previous in seen[:seen_count]:
             repeated = repeated or previous == signature
-        if coarse:
-            coarse = not (is_small_step(step, coarse_step, coarse_step) or repeated)
+        small = (is_small_step(step, coarse_step, coarse_step) if coarse else
+                 is_small_step(step, convergence_translation, convergence_rotation))
+        if small or repeated:  # the phase ends
+            seen_count = 0
             if coarse:
-                seen[seen_count] = signature
-                seen_count += 1
-            else:
-                seen_count = 0
-            continue
-        if is_small_step(step, convergence_translation, convergence_rotation) or repeated:
+                coarse = False
+                continue
             if not weighted:
                 converged = True
                 break
             weighted = False  # settled on every pair: trim from here
-            seen_count = 0
             continue
         seen[seen_count] = signature
         seen_count += 1
