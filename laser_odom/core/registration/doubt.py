@@ -99,12 +99,10 @@ class PredictionDoubt:
         (a corridor of pillars 1.2 m apart, driven at 1.1 m per scan: every later step
         was a silent alias).
         """
-        misses = [se2.relative(guess, other) for other in [pose, *alternatives]
-                  if se2.is_finite_pose(other)]
-        if misses:
-            missed = np.array(misses)
-            self._misses.append((float(np.max(np.hypot(missed[:, 0], missed[:, 1]))),
-                                 float(np.max(np.abs(se2.wrap_angle(missed[:, 2]))))))
+        missed = _largest_miss(guess, [other for other in [pose, *alternatives]
+                                       if se2.is_finite_pose(other)])
+        if missed is not None:
+            self._misses.append((float(missed[0]), float(missed[1])))
 
     def unproven(self) -> bool:
         """Tell whether fewer than :data:`MIN_RECORD` trusted matches are on record."""
@@ -132,8 +130,7 @@ class PredictionDoubt:
         """
         if len(self._misses) < MIN_RECORD:
             return ''
-        miss = se2.relative(guess, pose)
-        newest = np.array([math.hypot(miss[0], miss[1]), abs(se2.wrap_angle(miss[2]))])
+        newest = _largest_miss(guess, [pose])
         usual = _beyond(newest, list(self._misses))
         if usual is None:
             return ''
@@ -161,6 +158,15 @@ class PredictionDoubt:
                 return (f'recent predictions missed by up to {missed[0]:.2f} m / '
                         f'{np.degrees(missed[1]):.1f} deg')
         return ''
+
+
+def _largest_miss(guess: se2.Pose, poses: list[np.ndarray]) -> np.ndarray | None:
+    """Return the largest distance [m] and turn [rad] from ``guess`` to ``poses``."""
+    if not poses:
+        return None
+    missed = np.array([se2.relative(guess, pose) for pose in poses])
+    return np.array([np.max(np.hypot(missed[:, 0], missed[:, 1])),
+                     np.max(np.abs(se2.wrap_angle(missed[:, 2])))])
 
 
 def _beyond(newest: np.ndarray, earlier: list[tuple[float, float]]) -> np.ndarray | None:
