@@ -57,8 +57,9 @@ class MatcherConfig:
     covariance_baseline_falloff: float = param(
         0.0, 'A match n scans after its keyframe: the part of its covariance that is not '
         'noise of the two scans (white and bias) shrinks to (1 - covariance_shared_scan) / '
-        'n^falloff and the noise of the scans takes the rest (icp, plicp: 1, their pairing '
-        'errors fade as the scans move apart; nicp, imls: 0, a surface model errs alike).',
+        'n^falloff and the noise of the scans takes the rest (icp: 1, its pairing errors '
+        'fade as the scans move apart; plicp: 0.5, its lines are fitted to 0.2 m of surface; '
+        'nicp, imls: 0, a surface model errs alike).',
         0.0, 3.0)
     covariance_heading_walk: float = param(
         1.8e-4, 'Heading variance [rad^2] the integrated pose gains per metre travelled '

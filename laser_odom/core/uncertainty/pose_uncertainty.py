@@ -52,10 +52,11 @@ scan-to-scan shares predicts 0.42-0.47 deg. So the part of a match's covariance 
 not the scans' own noise, white and bias, shrinks with the baseline to ``r_n = (1 - a)
 / n^gamma`` (``covariance_baseline_falloff`` ``gamma``); the scans' own noise takes the
 rest, ``a_n = 1 - r_n``, and the bias its share of it, ``c_n = covariance_bias r_n``,
-which keeps a single match's covariance ``S_k``. ``gamma`` 1 fits ``icp`` and ``plicp``
-with keyframes in both simulated worlds. ``nicp`` and ``imls`` fit a surface model
-(normals and curvature, an implicit surface) to the noisy points, and its error does
-not fade with the baseline: ``gamma`` 0. Scan to scan ``n`` is 1 and ``gamma`` changes
+which keeps a single match's covariance ``S_k``. ``gamma`` 1 fits ``icp`` with keyframes
+in both simulated worlds. ``nicp`` and ``imls`` fit a surface model (normals and
+curvature, an implicit surface) to the noisy points, and its error does not fade with
+the baseline: ``gamma`` 0. ``plicp``, whose segment lines are fitted to 0.2 m of surface
+(``segment_window``), sits between: ``gamma`` 0.5. Scan to scan ``n`` is 1 and ``gamma`` changes
 nothing.
 The pipeline applies the model to good matches only: the covariance of a degenerate or
 rejected step is ignorance, not scan noise, and compounds as white.
