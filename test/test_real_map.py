@@ -47,7 +47,22 @@ fr079 and 0.76 % on MIT CSAIL but Intel's goes 0.55 -> 1.25 % and plicp's MIT CS
 map never takes a scan again (all steps from the previous scan); restarting after 15
 instead of 5 gave nicp 0.33 / 0.57 / 0.79 % (fr079 / MIT CSAIL / Intel) and Intel plicp
 1.82 %; letting scans join at 3x the usual residual instead of 2x made plicp fail
-silently on all three logs."""
+silently on all three logs.
+
+Measured 2026-12-05 too (5 copies, 50 m drift median [worst] %, fr079 / MIT CSAIL /
+Intel): letting the fifth poorly fitting scan join instead of restarting the map gave
+nicp 0.36 [0.44] / 0.68 [0.69] / 1.13 [1.45] and plicp 7 silent failed steps on Intel;
+the same with ``map_max_age`` 200: nicp 0.30 [0.32] / 0.59 [0.74] / 0.62 [0.77], imls
+0.27 [0.28] on fr079, but plicp silent failures on all three logs; with 60: no failed
+step on any log for any of the three matchers (plicp 0.36 [0.38] / 0.68 [0.76] / 0.54
+[0.98]), but plicp against the map in the simulated hall and campus failed 22 steps (11
+silent) where it fails 8 (5): a scan that joined after a 1.2 m slide along the hall's
+pillars put them in the map twice. Joining only when every scan of the row was matched
+cleanly on the map (else restarting) fixed that slide but, with ``map_max_age`` 1000,
+60 or 200, was no better on the real logs than restarting (plicp on Intel 5 silent
+failed steps with 1000). Restarting only when the matcher-free surface fit of the scan
+on the map's view is below 0.8 (0.95) of that on the previous scan: Intel plicp 1.19
+[2.30] % (nicp 0.85 [0.95] %)."""
 
 SHORT_OF_TARGET: dict[tuple[str, str], dict[str, str]] = {
     ('plicp', 'fr079'): {'drift': '0.30 [0.53] %, median [worst] of 5 copies, the documented '
