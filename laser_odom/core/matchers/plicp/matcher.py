@@ -58,7 +58,8 @@ with keyframes (0.3 m, 0.3 rad) the whole run 1.9 / 4.8. The shares of two-point
 error is the scans' own noise, which telescopes. A line fitted over 0.2 m is partly a
 surface model, whose error does not fade with the baseline as a two-point line's does
 (falloff 1: keyframes 3.8 / 9.7). On the real logs scan to scan the whole-log NEES goes
-2.2 / 1.0 / 8.0 -> 2.9 / 1.0 / 9.6 (fr079 / MIT CSAIL / Intel, copies 1-3)."""
+2.15 / 0.96 / 8.0 -> 2.45 / 1.03 / 9.60 (fr079 / MIT CSAIL / Intel, median of 5 copies;
+Intel's plicp drifts 4 % scan to scan, more than its heading walk covers)."""
 
 
 @dataclass
