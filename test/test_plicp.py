@@ -591,9 +591,7 @@ def test_between_two_long_walls_the_match_stays_on_the_true_step():
     data = as_received(with_range_noise(SensorSpec(
         WORLD_SENSORS['campus'], 'gentle', 144.2, 'campus', 1, 5.0).generate('campus'), 1))
     reference, current = (scan_to_points(scan) for scan in data.scans[719:721])
-    poses = data.reference.poses[[np.argmin(np.abs(data.reference.stamps_ns - scan.stamp_ns))
-                                  for scan in data.scans[719:721]]]
-    true = se2.relative(poses[0], poses[1])
+    true = data.reference.motion_between(data.scans[719].stamp_ns, data.scans[720].stamp_ns)
     assert true[0] == pytest.approx(0.072, abs=0.001)
     for start in (-0.03, 0.0, 0.03):
         guess = true + np.array([start, 0.0, 0.0])
@@ -612,10 +610,7 @@ def test_a_coarse_phase_that_cycles_ends_as_the_fine_phase_does(real_log):
     """
     data = as_received(real_log('intel-kf-fast'))
     reference, current = (scan_to_points(scan) for scan in data.scans[834:836])
-    stamps = data.reference.stamps_ns
-    poses = data.reference.poses[[np.argmin(np.abs(stamps - scan.stamp_ns))
-                                  for scan in data.scans[834:836]]]
-    true = se2.relative(poses[0], poses[1])
+    true = data.reference.motion_between(data.scans[834].stamp_ns, data.scans[835].stamp_ns)
     match = create_matcher('plicp').match(reference, current, true)
     assert match.converged and match.iterations < 50, match.iterations
     assert match.residual < 0.01, match.residual
