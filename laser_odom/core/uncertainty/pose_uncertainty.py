@@ -56,8 +56,8 @@ which keeps a single match's covariance ``S_k``. ``gamma`` 1 fits ``icp`` with k
 in both simulated worlds. ``nicp`` and ``imls`` fit a surface model (normals and
 curvature, an implicit surface) to the noisy points, and its error does not fade with
 the baseline: ``gamma`` 0. ``plicp``, whose segment lines are fitted to 0.2 m of surface
-(``segment_window``), sits between: ``gamma`` 0.5. Scan to scan ``n`` is 1 and ``gamma`` changes
-nothing.
+(``segment_window``), sits between: ``gamma`` 0.5. Scan to scan ``n`` is 1 and ``gamma``
+changes nothing.
 The pipeline applies the model to good matches only: the covariance of a degenerate or
 rejected step is ignorance, not scan noise, and compounds as white.
 
