@@ -252,8 +252,10 @@ def test_slow_processing_drops_old_scans_instead_of_queueing(peer, main_node):
     dropped = (backlog - backlog_before) + (missed - missed_before)
     # Every scan of the burst was either processed or counted as skipped.
     assert len(answered) + dropped == len(burst), (answered, backlog, missed)
-    # Those published while the first was matched were overwritten because it was busy.
-    assert backlog - backlog_before > 0 and len(answered) < len(burst)
+    # Those published while the first was matched were dropped, not queued: overwritten
+    # in the node's one-scan slot (skipped_backlog) or, on a loaded machine, lost
+    # before the node's callback ran (seen as a stamp gap: missed_scans).
+    assert dropped > 0 and len(answered) < len(burst), (answered, backlog, missed)
 
 
 def test_ctrl_c_while_matching_exits_cleanly(peer, main_node):
