@@ -111,3 +111,62 @@ def test_along_a_blind_direction_the_prediction_and_its_error_stand_in():
     registration = Registration(turn_blind, trigger='no_prior', trusted=False, prediction=last)
     verdict = judge_match(registration, se2.pose(), config, 2.0)
     assert math.isclose(verdict.covariance[2, 2], DEGENERATE_VARIANCE / 4.0, rel_tol=1e-9)
+
+
+def test_a_step_judged_degenerate_stays_out_of_the_measured_prediction_error():
+    """A match made again after de-skewing may look clean while its step stays degenerate.
+
+    Its velocity must not join the history as well constrained: a 1.5 m alias taken
+    so made the prediction's measured error 0.35 m (the simulated fast hall, plicp).
+    """
+    from laser_odom.core.events import EventLog
+    from laser_odom.core.registration.registrar import Registrar
+
+    def registrar_after(status: str) -> Registrar:
+        registrar = Registrar(EventLog(lambda message: None))
+        for k in range(8):
+            registrar._stamps = (k * SECOND, (k + 1) * SECOND)
+            step = (1.5, 1.5, 0.0) if k == 7 else (1.0, 0.0, 0.0)
+            tight = MatchResult(pose=np.array(step), converged=True, iterations=5,
+                                inlier_ratio=0.9, residual=0.01,
+                                information=np.eye(3) * 1e6, covariance=np.eye(3) * 1e-6)
+            registrar.accepted(tight, status if k == 7 else 'matched')
+        return registrar
+
+    clean, degenerate = registrar_after('matched'), registrar_after('degenerate')
+    assert clean.history.covariance(1.0)[1, 1] > 0.1  # the 1.5 m jump was measured
+    np.testing.assert_allclose(degenerate.history.covariance(1.0), np.diag(PREDICTION_FLOOR))
+
+
+def test_a_prediction_that_repeats_a_degenerate_step_carries_its_error():
+    """The trusted guess's covariance adds what it carries; a degenerate match covers it.
+
+    The match is blind along x only, but the step the guess repeats was an alias off
+    across the corridor too: the verdict is at least as wide as the prediction in every
+    direction. Without a carried error the match's strong directions keep their own
+    variance (:func:`test_along_a_blind_direction_the_prediction_and_its_error_stand_in`).
+    """
+    from laser_odom.core.events import EventLog
+    from laser_odom.core.registration.registrar import Registrar
+    registrar = Registrar(EventLog(lambda message: None))
+    end = steady(registrar.history, [(1.0, 0.0, 0.0), (1.01, 0.0, 0.0)] * 3)
+    registrar.elapsed_s = 1.0
+    carried = np.array([[0.01, -0.05, 0.0], [-0.05, 2.0, 0.01], [0.0, 0.01, 0.001]])
+    registrar.expect(carried)
+    guess = se2.pose(1.0, 0.0, 0.0)
+    reference = type('Scan', (), {'stamp_ns': end})()
+    prediction = registrar.predict(guess, '', reference, reference)
+    assert prediction.carried and prediction.source == 'prior'
+    np.testing.assert_allclose(prediction.covariance,
+                               registrar.history.covariance(1.0) + carried, rtol=1e-12)
+    verdict = judge_match(Registration(corridor_match(0.9), prediction=prediction), guess,
+                          PipelineConfig(), 2.0)
+    assert verdict.status == 'degenerate'
+    difference = verdict.covariance - prediction.covariance
+    assert np.linalg.eigvalsh(0.5 * (difference + difference.T)).min() > -1e-12
+    registrar.expect(np.zeros((3, 3)))
+    plain = registrar.predict(guess, '', reference, reference)
+    assert not plain.carried
+    verdict = judge_match(Registration(corridor_match(0.9), prediction=plain), guess,
+                          PipelineConfig(), 2.0)
+    assert verdict.covariance[1, 1] < 1e-5

@@ -143,3 +143,37 @@ def test_motion_model_bursty_stamps_are_those_with_over_a_tenth_of_short_interva
             model.update(se2.pose(), dt)
         assert model.effective_dt(0.2) == pytest.approx(expected, rel=1e-12)
         assert model.effective_dt(0.01) == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_velocity_from_a_step_not_well_constrained_carries_its_covariance():
+    """The guess repeats the step, so it carries the step's covariance scaled by (dt/dt_k)^2.
+
+    Nothing is carried after a well-constrained step (its error is in the measured
+    prediction error), after a stop or a reset, nor by a wheel-odometry guess; an IMU
+    guess carries only the translation (its yaw is measured).
+    """
+    from collections import Counter
+    covariance = np.array([[0.04, 0.01, 0.002], [0.01, 2.0, 0.003], [0.002, 0.003, 0.01]])
+    model = motion_model()
+    model.update(se2.pose(0.3, 0.0, 0.1), 0.1, covariance)
+    model.predict(0.2)
+    np.testing.assert_allclose(model.carried_covariance(0.2), covariance * 4.0, rtol=1e-12)
+    model.update(se2.pose(0.3, 0.0, 0.1), 0.1)  # well constrained
+    np.testing.assert_array_equal(model.carried_covariance(0.1), np.zeros((3, 3)))
+    for stop in (lambda m: m.update(se2.pose(0.3), 5.0), lambda m: m.reset()):
+        model.update(se2.pose(0.3, 0.0, 0.1), 0.1, covariance)
+        stop(model)
+        model.predict(0.1)
+        np.testing.assert_array_equal(model.carried_covariance(0.1), np.zeros((3, 3)))
+    odom = motion_model('odom')
+    odom.update(se2.pose(0.3, 0.0, 0.1), 0.1, covariance)
+    odom.predict(0.1, se2.pose(0.3, 0.0, 0.1), None, Counter())
+    np.testing.assert_array_equal(odom.carried_covariance(0.1), np.zeros((3, 3)))
+    odom.predict(0.1, None, None, Counter())  # missing: the constant velocity stands in
+    np.testing.assert_allclose(odom.carried_covariance(0.1), covariance, rtol=1e-12)
+    imu = motion_model('imu')
+    imu.update(se2.pose(0.3, 0.0, 0.1), 0.1, covariance)
+    imu.predict(0.1, None, 0.05, Counter())
+    expected = covariance.copy()
+    expected[2, :] = expected[:, 2] = 0.0
+    np.testing.assert_allclose(imu.carried_covariance(0.1), expected, rtol=1e-12)

@@ -62,6 +62,9 @@ class Prediction:
     pose: np.ndarray
     covariance: np.ndarray
     source: str
+    carried: bool = False
+    """Whether the covariance holds the error of a step that was not well constrained,
+    which the guess repeats (:meth:`.MotionModel.carried_covariance`)."""
 
 
 class StepHistory:

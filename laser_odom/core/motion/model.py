@@ -40,6 +40,9 @@ class MotionModel:
     def reset(self) -> None:
         """Forget the velocity (the robot is assumed at rest)."""
         self.velocity = np.zeros(3)
+        self.unmeasured = np.zeros((3, 3))
+        """Covariance [(m/s)^2, (rad/s)^2] of the velocity's error that the history of
+        well-constrained steps does not measure (:meth:`update`)."""
         self.guess_source = 'none'
 
     def forget_intervals(self) -> None:
@@ -121,20 +124,46 @@ class MotionModel:
         self.guess_source = 'constant_velocity'
         return constant_velocity
 
-    def update(self, step: se2.Pose, dt: float) -> None:
+    def update(self, step: se2.Pose, dt: float,
+               unmeasured: np.ndarray | None = None) -> None:
         """Record the estimated motion of the last step.
 
         A step over a gap longer than ``max_scan_gap`` (or a non-finite one) leaves the
         robot assumed at rest. The step is turned into a velocity over the
         :meth:`effective_dt`, so near-coincident stamps (millimetres of motion over a
         microsecond would be km/s) do not make the next prediction run away.
+
+        ``unmeasured`` is the step's covariance when it was not well constrained
+        (degenerate, weak): the prediction's measured error
+        (:class:`.blind_prior.StepHistory`) comes from consecutive well-constrained
+        steps and does not hold it, so the velocity carries it on as its own
+        (:meth:`carried_covariance`).
         """
         if dt > 0.0:
             self.intervals.append(dt)
             self._period = None
         if not (0.0 < dt <= self.config.max_scan_gap and se2.is_finite_pose(step)):
             self.velocity = np.zeros(3)
+            self.unmeasured = np.zeros((3, 3))
             return
         effective = self.effective_dt(dt)
         if effective >= MIN_VELOCITY_DT:
             self.velocity = np.array(step, dtype=float) / effective
+            self.unmeasured = (np.zeros((3, 3)) if unmeasured is None else
+                               np.array(unmeasured, dtype=float) / (effective * effective))
+
+    def carried_covariance(self, dt: float) -> np.ndarray:
+        """Return the covariance the last guess carries from a step not well constrained.
+
+        The constant-velocity guess over ``dt`` is the last step scaled to the interval
+        (``v dt``), so a step that erred by ``e`` sends the guess ``e`` off: its
+        covariance ``S`` scaled by ``(dt / dt_step)^2``. Nothing for a guess from wheel
+        odometry; only the translation for the IMU's (its yaw is measured).
+        """
+        if self.guess_source not in ('constant_velocity', 'imu'):
+            return np.zeros((3, 3))
+        effective = self.effective_dt(dt)
+        carried = self.unmeasured * (effective * effective)
+        if self.guess_source == 'imu':
+            carried[2, :] = carried[:, 2] = 0.0
+        return carried

@@ -128,6 +128,10 @@ class OdometryPipeline(LiveReconfiguration):
         else:
             untrusted = self._distrust(dt, scan.stamp_ns, prior_step)
             guess_step = self.motion.predict(dt, prior_step, prior_yaw, self.counters)
+            carried = self.motion.carried_covariance(dt)
+            self.registrar.expect(carried)
+            if self.map_registrar is not None:
+                self.map_registrar.expect(carried)
             estimate = self._register(current, guess_step, dt, scan.stamp_ns, untrusted)
         estimate.processing_time = time.perf_counter() - started
         self.processing_times.append(estimate.processing_time)
@@ -268,11 +272,12 @@ class OdometryPipeline(LiveReconfiguration):
             # for good. The velocity stays that of the prediction (none if untrusted).
             if untrusted:
                 self.motion.reset()
-            judged.registrar.accepted(registration.match)
+            judged.registrar.accepted(registration.match, verdict.status)
             self.untrusted = ''
         else:
-            self.motion.update(step, dt)
-            judged.registrar.accepted(registration.match)
+            self.motion.update(step, dt, None if verdict.status == 'matched'
+                               else step_covariance)
+            judged.registrar.accepted(registration.match, verdict.status)
             self.untrusted = ''
         if self.map_registrar is not None:
             self.keyframe_prepared = False  # the next match sees the map from the new pose

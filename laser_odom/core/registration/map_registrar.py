@@ -330,6 +330,13 @@ class MapRegistrar:
             return JudgedMatch(view, registrar, searched, verdict)
         return self._fallback(previous, found, found_verdict)
 
+    def expect(self, carried: np.ndarray) -> None:
+        """Tell the previous scan's registrar what the next trusted guess carries.
+
+        :meth:`.Registrar.expect`; the pipeline tells the map's registrar itself.
+        """
+        self.scan_registrar.expect(carried)
+
     def update(self, current: ScanPoints, pose: se2.Pose, judged: JudgedMatch,
                registrar: Registrar, stamp_ns: int) -> None:
         """Let a trusted scan join the map at ``pose``; restart the map after a rejection.
