@@ -198,14 +198,36 @@ def map_matches_at_scan_60(office, matcher: str):
 
 
 @pytest.mark.parametrize('matcher', ('icp', 'plicp'))
-def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office, matcher):
+def test_a_map_match_the_previous_scan_refutes_gives_way_to_the_scans_step(office, matcher):
     # fr079, icp: a map match 10 deg off (from a prediction 8 deg off) was judged clean
     # at twice the usual residual and published with a covariance of 0.5 deg. The
-    # previous scan, matched from the same prediction, is the second opinion: when it
-    # disagrees, the map's step keeps a covariance that covers the other.
+    # previous scan, matched from the same prediction, is the second opinion: its own
+    # step fits it far better than the map's, and the map's view fits the map's step
+    # no better than the scan's, so the scan's step is taken.
+    from laser_odom.core.registration.map_registrar import REFUTING_FIT, SURPRISE_FIT_SIGMA
+    from laser_odom.core.registration.recovery import surface_fit
     pipeline, previous, current, truth, map_match = map_matches_at_scan_60(office, matcher)
     registrar = pipeline.map_registrar
     wrong = map_match(se2.compose(truth, se2.pose(0.0, 0.0, 0.17)))
+    judged = registrar._second_opinion(pipeline.matcher, previous, current, truth,
+                                       pipeline.config, wrong)
+    assert not judged.from_map and judged.reference is previous
+    error = se2.relative(truth, judged.verdict.pose)
+    assert np.hypot(error[0], error[1]) < 0.02 and abs(error[2]) < 0.01, error
+    assert pipeline.counters['map_refuted'] == 1 and pipeline.counters['map_disputed'] == 0
+    fits = [surface_fit(previous, current.points, pose, SURPRISE_FIT_SIGMA)[0]
+            for pose in (judged.verdict.pose, wrong.verdict.pose)]
+    assert fits[0] - fits[1] > REFUTING_FIT
+
+
+@pytest.mark.parametrize('matcher', ('icp', 'plicp'))
+def test_a_clean_map_match_the_previous_scan_disputes_publishes_the_doubt(office, matcher):
+    # A map match a few centimetres off that the previous scan disputes but cannot
+    # refute (the map's step fits it nearly as well): neither is the better evidence,
+    # and the map's step keeps a covariance that covers the other.
+    pipeline, previous, current, truth, map_match = map_matches_at_scan_60(office, matcher)
+    registrar = pipeline.map_registrar
+    wrong = map_match(se2.compose(truth, se2.pose(0.0, 0.02, 0.0)))
     judged = registrar._second_opinion(pipeline.matcher, previous, current, truth,
                                        pipeline.config, wrong)
     assert judged.from_map and np.array_equal(judged.verdict.pose, wrong.verdict.pose)

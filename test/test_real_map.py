@@ -66,16 +66,19 @@ and the worst copy within 1.2x the median on 7 of 9 log-matcher pairs (today 4),
 medians no better (fr079 plicp 0.36 %, imls 0.40 %) and, against the map in the
 simulated hall and campus, plicp 17 failed steps (11 silent), imls 5 (2). Restarting
 only when the matcher-free surface fit of the scan on the map's view is below 0.8
-(0.95) of that on the previous scan: Intel plicp 1.19 [2.30] % (nicp 0.85 [0.95] %)."""
+(0.95) of that on the previous scan: Intel plicp 1.19 [2.30] % (nicp 0.85 [0.95] %).
+
+Measured 2026-12-06: a clean map match whose step fits the previous scan 0.25 (0.35,
+0.4) below the usual fit there (fr079 plicp copy 4: 0.45 against 0.88, 6.6 deg off)
+found again against the previous scan and refined on the map: fr079 plicp copies 4 / 1
+drift 0.41 / 0.43 % (0.37 / 0.42, 0.39 / 0.30) against 0.53 / 0.30 %: not taken."""
 
 SHORT_OF_TARGET: dict[tuple[str, str], dict[str, str]] = {
     ('plicp', 'fr079'): {'drift': '0.30 [0.53] %, median [worst] of 5 copies, the documented '
                                   'copy 0.30 % (issue 37 stability)',
                          'ATE': '0.20 [0.69] m, the documented copy 0.26 m'},
     ('nicp', 'fr079'): {'drift': f'0.40 [0.42] %; {MEMORY}', 'ATE': '0.40 [0.48] m'},
-    ('imls', 'fr079'): {'drift': '0.32 [0.58] %, median [worst] of 5 copies, the documented '
-                                 'copy 0.32 % (issue 37 stability)'},
-    ('nicp', 'mit-csail'): {'drift': f'0.76 [0.99] %; {MEMORY}'},
+    ('nicp', 'mit-csail'): {'drift': f'0.79 [0.99] %; {MEMORY}'},
     ('plicp', 'intel'): {'drift': '0.83 [1.39] %, the documented copy 0.51 %'},
     ('imls', 'intel'): {'drift': '0.39 [0.66] %, median [worst] of 5 copies, the documented '
                                  'copy 0.66 % (issue 37 stability)',
@@ -161,3 +164,19 @@ def test_a_map_whose_view_has_its_minimum_elsewhere_does_not_carry_the_robot_bac
     row = benchmark_run(log, 'plicp', 'constant_velocity', reference='local_map',
                         reference_noise=REAL_REFERENCE_NOISE)
     assert row.failed == 0 and row.ate < 0.9, (row.failed, row.silent, row.ate)
+
+
+def test_a_map_step_the_previous_scan_refutes_is_not_taken(real_log):
+    """fr079, imls, copy 5: the previous scan's step is taken where it refutes the map's.
+
+    At scans 2552-2553 two map matches that fitted the map worse than usual were 1.6
+    and 5.8 deg off; the previous scan, matched from the same prediction, was within
+    0.9 deg and fitted the scan at 0.89-0.93 where the map's steps fitted it at
+    0.39-0.43, and the map's own view fitted neither better. The map's steps were
+    kept (``map_disputed``): 50 m drift 0.58 % against 0.28-0.34 % for the other
+    copies. They are now refuted (``map_refuted``).
+    """
+    log = as_received(with_range_noise(real_log('fr079'), 5))
+    row = benchmark_run(log, 'imls', 'constant_velocity', reference='local_map',
+                        reference_noise=REAL_REFERENCE_NOISE)
+    assert row.failed == 0 and row.drift_trans < 0.4, (row.drift_trans, row.ate)
