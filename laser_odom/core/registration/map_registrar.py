@@ -224,7 +224,7 @@ class MapRegistrar:
         (:data:`REFUTING_FIT`) and the map's view does not prefer it either, the map
         has gone wrong there and the previous scan's step is taken (``map_refuted``):
         fr079, imls, 5 copies with 1 mm range noise, the map's step was 3-6 deg off in
-        such cases where the scan's was within 0.5 deg (50 m drift 0.32 [0.58] ->
+        such cases where the scan's was within 0.6 deg (50 m drift 0.32 [0.58] ->
         0.28 [0.34] %). Otherwise neither is the better evidence (taking the scan's
         always made mit-csail's plicp worse: a clean scan match 0.2 m off against a
         correct map match): the map's step stands, its covariance widened by ``d d^T``
