@@ -204,8 +204,7 @@ def test_a_map_match_the_previous_scan_refutes_gives_way_to_the_scans_step(offic
     # previous scan, matched from the same prediction, is the second opinion: its own
     # step fits it far better than the map's, and the map's view fits the map's step
     # no better than the scan's, so the scan's step is taken.
-    from laser_odom.core.registration.map_registrar import REFUTING_FIT, SURPRISE_FIT_SIGMA
-    from laser_odom.core.registration.recovery import surface_fit
+    from laser_odom.core.registration.map_registrar import REFUTING_FIT, settling_fit
     pipeline, previous, current, truth, map_match = map_matches_at_scan_60(office, matcher)
     registrar = pipeline.map_registrar
     wrong = map_match(se2.compose(truth, se2.pose(0.0, 0.0, 0.17)))
@@ -215,7 +214,7 @@ def test_a_map_match_the_previous_scan_refutes_gives_way_to_the_scans_step(offic
     error = se2.relative(truth, judged.verdict.pose)
     assert np.hypot(error[0], error[1]) < 0.02 and abs(error[2]) < 0.01, error
     assert pipeline.counters['map_refuted'] == 1 and pipeline.counters['map_disputed'] == 0
-    fits = [surface_fit(previous, current.points, pose, SURPRISE_FIT_SIGMA)[0]
+    fits = [settling_fit(previous, current, pose)
             for pose in (judged.verdict.pose, wrong.verdict.pose)]
     assert fits[0] - fits[1] > REFUTING_FIT
 

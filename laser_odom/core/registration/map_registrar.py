@@ -61,6 +61,16 @@ SURPRISE_FIT_SIGMA = 0.05
 apart differ by decimetres (:meth:`MapRegistrar._settle_surprise`)."""
 
 
+def settling_fit(reference: ScanPoints, current: ScanPoints, pose: se2.Pose) -> float:
+    """Return how well ``current`` at ``pose`` lies on ``reference``, whatever the matcher.
+
+    :func:`.recovery.surface_fit` with :data:`SURPRISE_FIT_SIGMA`: what settles a map
+    step against the previous scan's (:meth:`MapRegistrar._settle_surprise`,
+    :meth:`MapRegistrar._second_opinion`).
+    """
+    return surface_fit(reference, current.points, pose, SURPRISE_FIT_SIGMA)[0]
+
+
 class JudgedMatch(NamedTuple):
     """A judged match, the reference it was made against and the registrar that made it."""
 
@@ -242,7 +252,7 @@ class MapRegistrar:
             return judged
 
         def fit(reference: ScanPoints, pose: se2.Pose) -> float:
-            return surface_fit(reference, current.points, pose, SURPRISE_FIT_SIGMA)[0]
+            return settling_fit(reference, current, pose)
         if (fit(previous, verdict.pose) - fit(previous, judged.verdict.pose) > REFUTING_FIT
                 and fit(judged.reference, judged.verdict.pose)
                 <= fit(judged.reference, verdict.pose)):
@@ -289,7 +299,7 @@ class MapRegistrar:
             return judged
 
         def fit(pose: se2.Pose) -> float:
-            return sum(surface_fit(reference, current.points, pose, SURPRISE_FIT_SIGMA)[0]
+            return sum(settling_fit(reference, current, pose)
                        for reference in (previous, judged.reference))
         if fit(verdict.pose) > fit(judged.verdict.pose):
             return self._fallback(previous, registration, verdict)
