@@ -176,6 +176,41 @@ def test_judge_match_keeps_the_prediction_along_a_degenerate_direction():
     assert verdict.pose is not strong.pose and verdict.covariance is not strong.covariance
 
 
+def test_a_searched_match_keeps_its_turn_where_the_prediction_stands_in():
+    """A trusted prediction's match failed; the search found a turn 112 deg from it.
+
+    Along the weak direction (translation coupled with the turn, in metric units) the
+    prediction stands in for the translation only: the searched turn stays. Before,
+    the predicted turn was the anchor, and the correction's projection on the strong
+    directions put the step 2 m and 59 deg from the match (fr079 every 10th scan 0.1 s
+    apart, nicp, scan 394: 5.4 m off).
+    """
+    from laser_odom.core.registration.acceptance import judge_match
+    from laser_odom.core.registration.registrar import Registration
+    from laser_odom.core.search import SearchWindow
+    config = PipelineConfig()
+    config.acceptance.degeneracy_min_information = 400.0
+    length = 2.0
+    half = math.sqrt(0.5)
+    directions = np.array([[half, 0.0, -half], [0.0, 1.0, 0.0], [half, 0.0, half]])
+    metric = directions @ np.diag([100.0, 1e4, 2e4]) @ directions.T  # weak: x + L theta
+    scale = np.array([1.0, 1.0, 1.0 / length])
+    information = metric / scale[:, None] / scale[None, :]
+    guess, pose = se2.pose(0.8, -0.6, -1.2), se2.pose(1.0, 0.2, 0.75)
+    searched = Registration(good_match(pose, information=information), trigger='doubtful',
+                            window=SearchWindow(3.0, math.pi, 0.1))
+    verdict = judge_match(searched, guess, config, length)
+    assert verdict.status == 'degenerate'
+    np.testing.assert_allclose(verdict.pose, [0.9, 0.2, 0.7], atol=1e-9)
+    # Matched from the prediction (not searched), the prediction is the anchor.
+    config.acceptance.max_correction_angular = math.pi
+    config.acceptance.max_correction_linear = 3.0
+    local = judge_match(Registration(good_match(pose, information=information)), guess,
+                        config, length)
+    assert local.status == 'degenerate'
+    assert abs(se2.wrap_angle(local.pose[2] - pose[2])) > 0.5
+
+
 def test_an_ambiguous_match_covers_its_alternatives():
     """Each alternative's offset (angle wrapped) is added as d d^T: reported degenerate."""
     from laser_odom.core.registration.acceptance import covering_covariance, judge_match
