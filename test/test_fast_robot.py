@@ -125,6 +125,9 @@ def test_a_hall_alias_carried_on_by_the_prediction_is_announced():
     that prediction, was published with a centimetre across the aisle: NEES 165,
     silent. Now the step the prediction repeats stays out of the measured prediction
     error, and the prediction carries its covariance, which the next step covers.
+    Since a searched step keeps its measured turn, the alias runs on for 10 failed
+    steps instead of 3 (at scan 126 the search's grid, 2 cm off, refined no peak to
+    the right pose), every one announced.
     """
     from laser_odom.core.datasets.variants import with_range_noise
     from laser_odom.core.evaluation.benchmark import GRIDS
@@ -133,7 +136,7 @@ def test_a_hall_alias_carried_on_by_the_prediction_is_announced():
     hall = GRIDS['worlds']['sim-hall-fast-s2'].generate('sim-hall-fast-s2')
     copy = as_received(with_range_noise(hall, 3, 0.001))
     row = benchmark_run(copy, 'plicp', 'constant_velocity', reference_noise=NO_REFERENCE_NOISE)
-    assert row.steps >= 590 and 1 <= row.failed <= 5, row
+    assert row.steps >= 590 and 1 <= row.failed <= 12, row
     assert row.silent == 0, row
 
 
