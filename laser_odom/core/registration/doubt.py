@@ -20,6 +20,14 @@ poses that fit alike reported as ambiguous), when
 * or the prediction missed by more than :data:`MISS_FRACTION` of that gate on one of
   the last :data:`RECENT_MISSES` trusted matches: the motion is changing faster than
   the constant velocity follows;
+* or the match from one of the last :data:`RECENT_MISSES` trusted predictions slid
+  beyond that gate (:data:`SLID`): the matcher's basin, not the prediction, failed
+  there, and the next match from as good a prediction can slide less far and pass
+  (the simulated fast hall, plicp: the search found the step within 2 cm of the
+  prediction; the next match from a prediction as good slid 0.25 m back along the
+  aisle, was taken as ``matched`` and, de-skewed with its own motion and matched
+  again, 0.45 m: 0.65 m off with a 2 cm deviation, and the constant velocity carried
+  it silently over four more steps);
 * or the match from it corrected it by far more than the recent misses
   (:meth:`PredictionDoubt.would_surprise`): where the scene barely constrains a
   direction, a match can slide to a minimum elsewhere along it from a prediction good
@@ -56,6 +64,10 @@ checked. At full rate the constant velocity misses by at most 0.32 m / 24 deg (f
 plicp; 99 % of the last-ten maxima below 0.19 m / 14 deg), so few scans are checked;
 on the fast logs it misses by more than that in nine of ten windows."""
 
+SLID = 'large_correction'
+"""The local failure (:func:`.rejection.rejection_reason`) of a match that slid beyond
+``max_correction_*`` from its trusted prediction."""
+
 SURPRISE_FACTOR = 3.0
 """A trusted prediction corrected by more than this multiple of the largest of the
 recent misses before it (in translation or rotation) surprised the match: a map whose
@@ -83,14 +95,21 @@ class PredictionDoubt:
     def __init__(self) -> None:
         """Start with no misses recorded."""
         self._misses: deque[tuple[float, float]] = deque(maxlen=RECENT_MISSES)
+        self._slid: deque[bool] = deque(maxlen=RECENT_MISSES)
+        """Whether the match from each recorded prediction slid beyond the gate."""
 
     def clear(self) -> None:
         """Forget the recent misses."""
         self._misses.clear()
+        self._slid.clear()
 
     def record(self, guess: se2.Pose, pose: se2.Pose,
-               alternatives: Iterable[np.ndarray] = ()) -> None:
+               alternatives: Iterable[np.ndarray] = (), local_failure: str = '') -> None:
         """Record how far a trusted prediction ``guess`` was from the step matched.
+
+        ``local_failure`` is why the match from ``guess`` failed before the search
+        found the step ('' when it did not): :data:`SLID` keeps the next predictions
+        in doubt however near the step was found.
 
         A step chosen among ``alternatives`` that fit alike (taken nearest the
         prediction) does not confirm the prediction: it may have missed by as much as
@@ -103,6 +122,7 @@ class PredictionDoubt:
                                        if se2.is_finite_pose(other)])
         if missed is not None:
             self._misses.append((float(missed[0]), float(missed[1])))
+            self._slid.append(local_failure == SLID)
 
     def unproven(self) -> bool:
         """Tell whether fewer than :data:`MIN_RECORD` trusted matches are on record."""
@@ -152,6 +172,8 @@ class PredictionDoubt:
                     'beyond the correction gate: a stop would pass unseen')
         if unproven and self.unproven():
             return f'{len(self._misses)} trusted predictions since the last search'
+        if any(self._slid):
+            return 'the match from a recent prediction slid beyond the correction gate'
         if self._misses:
             missed = np.max(np.array(self._misses), axis=0)
             if missed_far(missed[0], missed[1], config):

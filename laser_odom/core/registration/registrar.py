@@ -216,7 +216,8 @@ class Registrar:
                 registration = Registration(local, local_failure=failure)
         if not untrusted and verify and registration.match.converged:
             self.doubt.record(guess, registration.match.pose,
-                              [pose for pose, _ in registration.alternatives])
+                              [pose for pose, _ in registration.alternatives],
+                              registration.local_failure)
         registration.prediction = prediction
         return registration
 
