@@ -8,7 +8,9 @@ global search's (:mod:`laser_odom.core.registration.doubt`).
 
 The simulated test needs no data: a robot at 6 m/s in a corridor stops, or steps aside,
 within one scan. The real-log test re-stamps every 5th/10th scan of fr079 and intel's
-keyframes 0.1 s apart (skipped without ../shared/data).
+keyframes 0.1 s apart (skipped without ../shared/data) and runs them scan to scan and
+against the local map, for issue 37's fast-robot bars too (one scan-mode run serves
+both).
 """
 
 import math
@@ -198,19 +200,51 @@ where the prediction stands in (:func:`.acceptance.judge_match`: 1 -> 0 against 
 10 -> 7 against 8)."""
 
 
+FAST_ATE_RATIO = 1.1
+"""Issue 37: on the fast-robot logs map mode's ATE is at most this multiple of scan
+mode's."""
+
+FAST_SHORT: dict[tuple[str, str], dict[str, str]] = {}
+"""On the fast-robot logs as received: where map mode does worse than scan mode (issue
+37 is open on these; before, intel-kf-fast failed 26/17/29 steps in map mode against
+21/8/12 in scan mode; nicp and imls on fr079/10-fast 11 and 10 (1 silent each) against
+10 and 9, intel-kf-fast nicp 6 (1) against 5, until a map match that moved far from an
+unproven prediction was checked by the search, map_judging.overshot_unproven; plicp on
+fr079/10-fast had an ATE of 10.3 m against the map and 6.5 m scan to scan until its
+segment lines took their surface's direction: 9.9 m in both)."""
+
+
 @pytest.mark.parametrize('dataset', FAST_LOGS)
 @pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
-def test_fast_logs_have_no_silent_failure_with_the_default_prior(
-        real_log, matcher, dataset):
-    """Before: intel-kf-fast 21/10, 8/5, 12/6 failed/silent; fr079/10-fast nicp 15/2."""
+def test_fast_logs_have_no_silent_failure_and_the_map_is_no_worse(real_log, matcher, dataset):
+    """Issue 38 in scan mode and issue 37's fast-robot bars, from one scan-mode run.
+
+    The default prior, scan to scan: no silent failed step, no more failed steps than
+    ``prior: none`` (before: intel-kf-fast 21/10, 8/5, 12/6 failed/silent; fr079/10-fast
+    nicp 15/2). Against the local map: no silent failed step either, and no more
+    failed or silent steps than scan mode, with an ATE within :data:`FAST_ATE_RATIO`
+    of it (before: intel-kf-fast map mode 30/6, 18/4, 19/2 failed/silent, scan 12/0,
+    4/0, 5/0).
+    """
     scans = as_received(real_log(dataset))
-    row = benchmark_run(scans, matcher, 'constant_velocity',
-                        reference_noise=REAL_REFERENCE_NOISE)
-    figures = f'{matcher} on {dataset}: {row.failed} of {row.steps} failed ({row.silent} silent)'
-    assert row.steps >= 470, figures
-    assert row.silent == 0, figures
-    none = benchmark_run(scans, matcher, 'none', reference_noise=REAL_REFERENCE_NOISE)
+    rows = {(prior, reference): benchmark_run(scans, matcher, prior, reference=reference,
+                                              reference_noise=REAL_REFERENCE_NOISE)
+            for prior, reference in (('constant_velocity', 'scan'), ('none', 'scan'),
+                                     ('constant_velocity', 'local_map'))}
+    scan, none = rows['constant_velocity', 'scan'], rows['none', 'scan']
+    mapped = rows['constant_velocity', 'local_map']
+    figures = (f'{matcher} on {dataset}, failed (silent), ATE: scan {scan.failed} '
+               f'({scan.silent}) of {scan.steps}, {scan.ate:.2f} m; prior none '
+               f'{none.failed}; map {mapped.failed} ({mapped.silent}), {mapped.ate:.2f} m')
+    assert scan.steps >= 470 and mapped.reference == 'local_map', figures
+    assert scan.silent == 0 and mapped.silent == 0, figures
     if (dataset, matcher) in FAILED_GAP:  # strict: a fix shows
-        assert row.failed > none.failed, f'{figures}; prior none: {none.failed} (a fix)'
+        assert scan.failed > none.failed, f'{figures} (a fix)'
     else:
-        assert row.failed <= none.failed, f'{figures}; prior none: {none.failed}'
+        assert scan.failed <= none.failed, figures
+    short = {'failed steps': mapped.failed > scan.failed,
+             'silent': mapped.silent > scan.silent,
+             'ATE': mapped.ate > FAST_ATE_RATIO * scan.ate}
+    missed = {bar for bar, is_short in short.items() if is_short}
+    known = set(FAST_SHORT.get((matcher, dataset), {}))
+    assert missed == known, f'missed {sorted(missed)}, documented {sorted(known)}: {figures}'

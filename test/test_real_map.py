@@ -10,10 +10,9 @@ mode's worst copy, a whole-log NEES within :data:`NEES_RANGE`. Where it falls sh
 :data:`SHORT_OF_TARGET` says which bar and why; the check is strict both ways, so a fix
 shows.
 
-On the fast-robot logs (every 5th / 10th scan of fr079 and intel's keyframes, 0.1 s
-apart: the constant-velocity prediction is trusted on large steps) map mode may fail
-no more steps than scan mode on the same scans, no more of them silently, and keep an
-ATE within 1.1x scan mode's. Skipped when ../shared/data is absent.
+The fast-robot logs' map-mode bars (no worse than scan mode on the same scans) are
+held by :mod:`test_fast_robot`, which runs scan mode there once for both issues.
+Skipped when ../shared/data is absent.
 """
 
 import pytest
@@ -32,9 +31,6 @@ ATE_TARGET = {'fr079': 0.20, 'mit-csail': 0.60, 'intel': 0.20}
 NEES_RANGE = (1.0, 8.0)
 """Issue 37: the whole-log integrated NEES (3 when honest; below 1 a fusing filter
 trusts the odometry less than it should)."""
-
-FAST_ATE_RATIO = 1.1
-"""On the fast-robot logs map mode's ATE is at most this multiple of scan mode's."""
 
 MEMORY = ('the map restarts after 5 scans in a row fit it poorly (fr079, copy 1: 29 restarts; '
           'the residual of nicp against the view is 2.3x its usual at the 90th percentile), '
@@ -88,15 +84,6 @@ SHORT_OF_TARGET: dict[tuple[str, str], dict[str, str]] = {
 """Bars a case misses on the documented copy, and why (the test fails when one is met,
 or another missed): issue 37 is open on these."""
 
-FAST_SHORT: dict[tuple[str, str], dict[str, str]] = {}
-"""On the fast-robot logs as received: where map mode does worse than scan mode (issue
-37 is open on these; before, intel-kf-fast failed 26/17/29 steps in map mode against
-21/8/12 in scan mode; nicp and imls on fr079/10-fast 11 and 10 (1 silent each) against
-10 and 9, intel-kf-fast nicp 6 (1) against 5, until a map match that moved far from an
-unproven prediction was checked by the search, map_judging.overshot_unproven; plicp on
-fr079/10-fast had an ATE of 10.3 m against the map and 6.5 m scan to scan until its
-segment lines took their surface's direction: 9.9 m in both)."""
-
 DOCUMENTED_COPY = 1
 """The seed of the documented copy a test runs (``laser_odom_bench --perturb``: 1..N)."""
 
@@ -125,29 +112,6 @@ def test_the_local_map_meets_its_figures_and_the_targets(real_log, matcher, data
              'NEES': not low <= row.nees_integrated <= high}
     missed = {bar for bar, is_short in short.items() if is_short}
     known = set(SHORT_OF_TARGET.get((matcher, dataset), {}))
-    assert missed == known, f'missed {sorted(missed)}, documented {sorted(known)}: {figures}'
-
-
-FAST_CASES = [(matcher, dataset) for matcher in ('plicp', 'nicp', 'imls')
-              for dataset in ('fr079/5-fast', 'fr079/10-fast', 'intel-kf-fast')]
-
-
-@pytest.mark.parametrize('matcher, dataset', FAST_CASES)
-def test_with_a_fast_robot_the_map_is_no_worse_than_scan_mode(real_log, matcher, dataset):
-    """Before: intel-kf-fast map mode 30/6, 18/4, 19/2 failed/silent, scan 12/0, 4/0, 5/0."""
-    log = as_received(real_log(dataset))
-    rows = {reference: benchmark_run(log, matcher, 'constant_velocity', reference=reference,
-                                     reference_noise=REAL_REFERENCE_NOISE)
-            for reference in ('scan', 'local_map')}
-    scan, mapped = rows['scan'], rows['local_map']
-    figures = (f'{matcher} on {dataset}: failed (silent), ATE: scan {scan.failed} '
-               f'({scan.silent}), {scan.ate:.2f} m; map {mapped.failed} ({mapped.silent}), '
-               f'{mapped.ate:.2f} m')
-    short = {'failed steps': mapped.failed > scan.failed,
-             'silent': mapped.silent > scan.silent,
-             'ATE': mapped.ate > FAST_ATE_RATIO * scan.ate}
-    missed = {bar for bar, is_short in short.items() if is_short}
-    known = set(FAST_SHORT.get((matcher, dataset), {}))
     assert missed == known, f'missed {sorted(missed)}, documented {sorted(known)}: {figures}'
 
 
