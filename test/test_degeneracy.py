@@ -56,3 +56,22 @@ def test_ignorance_along_a_corridor_accumulates(corridor_run, matcher):
     assert len(along) >= 0.8 * (len(corridor_run.scans) - 1)
     final = pipeline.pose_covariance[0, 0]
     assert final >= 0.9 * sum(along) * dt * dt, (final, sum(along) * dt * dt)
+
+
+def test_what_the_scan_measured_has_no_information_along_a_weak_direction():
+    """A corridor's axis: the matcher's small variance there is not a measurement.
+
+    Along the weak eigenvector (x, below ``degeneracy_min_information``) the variance
+    becomes :data:`.UNMEASURED_VARIANCE`; across it the match's covariance stands, and
+    a match without weak directions keeps its covariance.
+    """
+    from laser_odom.core.configuration.pipeline import AcceptanceConfig
+    from laser_odom.core.uncertainty.degeneracy import measured_only, UNMEASURED_VARIANCE
+    threshold = AcceptanceConfig().degeneracy_min_information
+    covariance = np.diag([1e-4, 1e-6, 1e-6])
+    corridor = np.diag([0.1 * threshold, 1e6, 1e6])
+    blind = measured_only(covariance, corridor, 5.0, threshold)
+    assert blind[0, 0] >= UNMEASURED_VARIANCE
+    np.testing.assert_allclose(blind[1:, 1:], covariance[1:, 1:], atol=1e-12)
+    room = np.diag([1e6, 1e6, 1e6])
+    np.testing.assert_allclose(measured_only(covariance, room, 5.0, threshold), covariance)

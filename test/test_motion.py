@@ -177,3 +177,26 @@ def test_a_velocity_from_a_step_not_well_constrained_carries_its_covariance():
     expected = covariance.copy()
     expected[2, :] = expected[:, 2] = 0.0
     np.testing.assert_allclose(imu.carried_covariance(0.1), expected, rtol=1e-12)
+
+
+def test_a_step_weighed_against_the_prediction_keeps_what_each_knows_best():
+    """The Kalman update: the well-measured coordinates follow the step, the rest stay.
+
+    Along x the scan measured nothing (a metre of deviation against the prediction's
+    2 cm): the prediction stays. Across (y) it measured to a millimetre: the step
+    stands. Equal errors (the heading) meet half way, and the result's error is the
+    two combined, ``(P^-1 + S^-1)^-1``.
+    """
+    from laser_odom.core.motion.model import fused_with_prediction
+    guess, measured = se2.pose(0.2, 0.0, 0.1), se2.pose(-1.3, 0.05, 0.14)
+    prior = np.diag([0.02, 0.02, 0.01]) ** 2
+    step = np.diag([1.0, 0.001, 0.01]) ** 2
+    fused, covariance = fused_with_prediction(guess, prior, measured, step)
+    assert abs(fused[0] - 0.2) < 0.001 and abs(fused[1] - 0.05) < 0.0002, fused
+    assert fused[2] == pytest.approx(0.12)
+    np.testing.assert_allclose(covariance, np.linalg.inv(np.linalg.inv(prior)
+                                                         + np.linalg.inv(step)), rtol=1e-9)
+    # Across the angle's wrap: the innovation is the short way round.
+    fused, _ = fused_with_prediction(se2.pose(0.0, 0.0, math.pi - 0.01), prior,
+                                     se2.pose(0.0, 0.0, -math.pi + 0.01), prior)
+    assert abs(se2.wrap_angle(fused[2] - math.pi)) < 1e-9, fused

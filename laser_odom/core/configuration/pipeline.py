@@ -19,6 +19,9 @@ from laser_odom.core.search import SearchWindow
 PRIORS = ('none', 'constant_velocity', 'odom', 'imu')
 """Motion priors: ``none`` starts every match at zero motion."""
 
+VELOCITY_UPDATES = ('replace', 'weighed')
+"""How a step that is not well constrained sets the velocity (:class:`MotionConfig`)."""
+
 SEARCH_MODES = ('off', 'recover', 'always')
 """When the global search runs: never, when the prediction cannot be trusted or the
 local match failed, or before every match."""
@@ -74,6 +77,13 @@ class MotionConfig:
         1.0, 'A gap between scans longer than this [s] drops the motion prior (the next '
         'match is not predicted; the global search recovers it), unless it is wheel '
         'odometry (prior: odom), which measures the motion over any gap.', 0.0, 3600.0)
+    velocity_update: str = param(
+        'replace', 'How a step that is not well constrained (degenerate) sets the constant '
+        'velocity: replace (the step becomes the velocity) or weighed (the prediction '
+        'corrected by what the scans measured of the step, each weighed by its error; for '
+        'a robot that moves steadily among repeating structure, such as a hall of pillars; '
+        'it costs failed steps where the motion changes abruptly between scans).',
+        choices=VELOCITY_UPDATES)
 
 
 @dataclass

@@ -28,6 +28,28 @@ JITTER_FRACTION = 0.1
 """Share of implausibly short intervals above which scan stamps count as jittery."""
 
 
+def fused_with_prediction(guess: se2.Pose, prior_covariance: np.ndarray,
+                          measured: se2.Pose, measured_covariance: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Return the prediction corrected by a measured step, and the result's covariance.
+
+    The Kalman update of the constant-velocity state with the step as its measurement
+    (Thrun, Burgard and Fox, *Probabilistic Robotics*, table 3.1): ``K = P (P + S)^-1``,
+    ``x = g + K (z - g)``, covariance ``(I - K) P``, with ``g`` the predicted step
+    and ``P`` its error, ``z`` the measured step and ``S`` its error. Where the scan
+    measured well (``S`` far below ``P``) the step stands; where it measured little
+    the prediction stays. All three coordinates in one frame (the previous scan's).
+    """
+    prior = np.asarray(prior_covariance, dtype=float)
+    gain = prior @ np.linalg.pinv(prior + np.asarray(measured_covariance, dtype=float))
+    innovation = np.asarray(measured, dtype=float) - guess
+    innovation[2] = se2.wrap_angle(innovation[2])
+    fused = np.asarray(guess, dtype=float) + gain @ innovation
+    fused[2] = se2.wrap_angle(fused[2])
+    covariance = (np.eye(3) - gain) @ prior
+    return fused, 0.5 * (covariance + covariance.T)
+
+
 class MotionModel:
     """Predicts the motion between scans from the last velocity or an external prior."""
 
@@ -133,8 +155,9 @@ class MotionModel:
         :meth:`effective_dt`, so near-coincident stamps (millimetres of motion over a
         microsecond would be km/s) do not make the next prediction run away.
 
-        ``unmeasured`` is the step's covariance when it was not well constrained
-        (degenerate, weak): the prediction's measured error
+        ``unmeasured`` is the step's error when it was not well constrained
+        (degenerate, weak): its covariance, or that of the prediction corrected by it
+        (:func:`fused_with_prediction`). The prediction's measured error
         (:class:`.blind_prior.StepHistory`) comes from consecutive well-constrained
         steps and does not hold it, so the velocity carries it on as its own
         (:meth:`carried_covariance`).

@@ -27,7 +27,8 @@ from laser_odom.core.motion.blind_prior import Prediction
 from laser_odom.core.registration.registrar import Registration
 from laser_odom.core.registration.rejection import rejection_reason, searched_rejection_reason
 from laser_odom.core.search import SearchWindow
-from laser_odom.core.uncertainty.degeneracy import degenerate_directions, metric_scale
+from laser_odom.core.uncertainty.degeneracy import (
+    degenerate_directions, measured_only, metric_scale)
 
 
 DEGENERATE_VARIANCE = 1.0
@@ -118,6 +119,21 @@ def judge_match(registration: Registration, guess: se2.Pose, config: PipelineCon
             verdict.pose, trusted.covariance, [trusted.pose])
         verdict = MatchVerdict(verdict.pose, verdict.covariance + cover, 'degenerate')
     return verdict
+
+
+def measured_covariance(match: MatchResult, config: AcceptanceConfig,
+                        length_scale: float) -> np.ndarray:
+    """Return the covariance of what the scans alone say about a match's pose.
+
+    The matcher's covariance and the search surface's spread where the search ran,
+    with no information along the weak directions: none of what a verdict adds from
+    the prediction (its variance where the match is blind, or the cover of a step it
+    repeats), which would count the prediction twice when the two are weighed
+    (:func:`.motion.model.fused_with_prediction`).
+    """
+    covariance = match.covariance + match.extra.get('surface_covariance', 0.0)
+    return measured_only(covariance, match.information, length_scale,
+                         config.degeneracy_min_information)
 
 
 def judge_again(first: MatchVerdict, again: Registration, config: PipelineConfig,

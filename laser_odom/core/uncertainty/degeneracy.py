@@ -38,3 +38,24 @@ def degenerate_directions(information: np.ndarray, length_scale: float,
     values, vectors = np.linalg.eigh(0.5 * (scaled + scaled.T))
     weak = values < min_information
     return values, vectors, weak
+
+
+UNMEASURED_VARIANCE = 1e6
+"""Variance [m^2, and rad^2 scaled by the length] of a direction the scan did not measure."""
+
+
+def measured_only(covariance: np.ndarray, information: np.ndarray, length_scale: float,
+                  min_information: float) -> np.ndarray:
+    """Return a match's covariance with no information left along its weak directions.
+
+    What the scans alone say about the step: along a direction whose information is
+    below ``min_information`` the match's pose is where the matcher stopped, not a
+    measurement, so the variance there is :data:`UNMEASURED_VARIANCE` (added along
+    the weak eigenvectors, mapped back from metric units: ``S v``).
+    """
+    _, vectors, weak = degenerate_directions(information, length_scale, min_information)
+    out = np.array(covariance, dtype=float)
+    if np.any(weak):
+        blind = metric_scale(length_scale)[:, None] * vectors[:, weak]
+        out = out + UNMEASURED_VARIANCE * (blind @ blind.T)
+    return 0.5 * (out + out.T)
