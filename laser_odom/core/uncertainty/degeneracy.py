@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
+UNMEASURED_VARIANCE = 1e6
+"""Variance [m^2, and rad^2 scaled by the length] of a direction the scan did not measure."""
+
 
 def metric_scale(length_scale: float) -> np.ndarray:
     """Return S = diag(1, 1, L): ``x = S x'`` maps ``[x, y, L theta]`` to ``[x, y, theta]``.
@@ -38,10 +41,6 @@ def degenerate_directions(information: np.ndarray, length_scale: float,
     values, vectors = np.linalg.eigh(0.5 * (scaled + scaled.T))
     weak = values < min_information
     return values, vectors, weak
-
-
-UNMEASURED_VARIANCE = 1e6
-"""Variance [m^2, and rad^2 scaled by the length] of a direction the scan did not measure."""
 
 
 def measured_only(covariance: np.ndarray, information: np.ndarray, length_scale: float,
