@@ -140,6 +140,22 @@ def test_a_match_that_slid_beyond_the_gate_keeps_the_next_predictions_in_doubt()
     assert doubt.doubt(step, config) == ''
 
 
+def fast_hall_run(seed: int, copy: int, config: PipelineConfig | None = None):
+    """Return plicp's scan-to-scan row on a 1 mm noise copy of the simulated fast hall.
+
+    The default prior, as a bag delivers the scans (float32), scored without reference
+    noise (the simulation's poses are exact).
+    """
+    from laser_odom.core.datasets.variants import with_range_noise
+    from laser_odom.core.evaluation.benchmark import GRIDS
+    from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE
+
+    name = f'sim-hall-fast-s{seed}'
+    scans = as_received(with_range_noise(GRIDS['worlds'][name].generate(name), copy, 0.001))
+    return benchmark_run(scans, 'plicp', 'constant_velocity', config=config,
+                         reference_noise=NO_REFERENCE_NOISE)
+
+
 def test_a_slide_along_the_hall_aisle_after_a_slid_match_is_announced():
     """The simulated fast hall, plicp scan to scan, seed 1, copy 9 (issue 38).
 
@@ -152,13 +168,7 @@ def test_a_slide_along_the_hall_aisle_after_a_slid_match_is_announced():
     checked by the search, which finds the aisle weakly constrained: the same 5 steps
     fail, announced.
     """
-    from laser_odom.core.datasets.variants import with_range_noise
-    from laser_odom.core.evaluation.benchmark import GRIDS
-    from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE
-
-    hall = GRIDS['worlds']['sim-hall-fast-s1'].generate('sim-hall-fast-s1')
-    copy = as_received(with_range_noise(hall, 9, 0.001))
-    row = benchmark_run(copy, 'plicp', 'constant_velocity', reference_noise=NO_REFERENCE_NOISE)
+    row = fast_hall_run(1, 9)
     assert row.steps >= 590 and row.failed <= 6, row
     assert row.silent == 0, row
 
@@ -175,13 +185,7 @@ def test_a_hall_alias_carried_on_by_the_prediction_is_announced():
     steps instead of 3 (at scan 126 the search's grid, 2 cm off, refined no peak to
     the right pose), every one announced.
     """
-    from laser_odom.core.datasets.variants import with_range_noise
-    from laser_odom.core.evaluation.benchmark import GRIDS
-    from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE
-
-    hall = GRIDS['worlds']['sim-hall-fast-s2'].generate('sim-hall-fast-s2')
-    copy = as_received(with_range_noise(hall, 3, 0.001))
-    row = benchmark_run(copy, 'plicp', 'constant_velocity', reference_noise=NO_REFERENCE_NOISE)
+    row = fast_hall_run(2, 3)
     assert row.steps >= 590 and 1 <= row.failed <= 12, row
     assert row.silent == 0, row
 
@@ -198,20 +202,13 @@ def test_weighed_velocity_keeps_a_step_the_hall_hardly_measured_from_the_predict
     (:func:`.motion.model.fused_with_prediction`): 4 failed. The default
     (``replace``) is held to its count too, so that a change to either shows.
     """
-    from laser_odom.core.configuration.pipeline import PipelineConfig
-    from laser_odom.core.datasets.variants import with_range_noise
-    from laser_odom.core.evaluation.benchmark import GRIDS
-    from laser_odom.core.evaluation.consistency import NO_REFERENCE_NOISE
     from laser_odom.core.matchers import default_config
 
-    hall = GRIDS['worlds']['sim-hall-fast-s3'].generate('sim-hall-fast-s3')
-    copy = as_received(with_range_noise(hall, 2, 0.001))
     rows = {}
     for update in ('replace', 'weighed'):
         config = PipelineConfig(matcher='plicp', matcher_config=default_config('plicp'))
         config.motion.velocity_update = update
-        rows[update] = benchmark_run(copy, 'plicp', 'constant_velocity', config=config,
-                                     reference_noise=NO_REFERENCE_NOISE)
+        rows[update] = fast_hall_run(3, 2, config)
     weighed, replaced = rows['weighed'], rows['replace']
     assert weighed.steps >= 590 and weighed.failed <= 6, weighed
     assert weighed.silent == 0 and replaced.silent == 0, rows
