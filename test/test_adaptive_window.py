@@ -23,9 +23,10 @@ from laser_odom.core.configuration.pipeline import GlobalSearchConfig, PipelineC
 from laser_odom.core.evaluation.benchmark import benchmark_run
 from laser_odom.core.matchers import MatchResult
 from laser_odom.core.motion.blind_prior import Prediction
+from laser_odom.core.pipeline.announce import EVIDENCE_EVENTS
 from laser_odom.core.pipeline.estimate import EVENTS
 from laser_odom.core.registration.acceptance import judge_match, rejected_covariance
-from laser_odom.core.registration.registrar import EVIDENCE_EVENTS, Registration
+from laser_odom.core.registration.registrar import Registration
 from laser_odom.core.search import SearchWindow
 from laser_odom.core.simulation import drop_to_steps, simulate
 

@@ -10,12 +10,29 @@ counted, not said.
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from laser_odom.core import se2
 from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.registration.acceptance import MatchVerdict
 from laser_odom.core.registration.registrar import Registration, ROUTINE_TRIGGERS, SEARCH_TRIGGERS
 from laser_odom.core.registration.rejection import describe_rejection
+
+PREDICTION_SOURCES = {'prior': 'the prediction (the prior)',
+                      'last_step': "the last well-constrained step's motion (steady rate)"}
+"""What stood in for a blind direction, by :attr:`.Prediction.source`."""
+
+EVIDENCE_EVENTS = ('weakly_constrained', 'poor_fit', 'prediction_used', 'search_widened',
+                   'other_basin')
+"""Counted events of the evidence a match had: its covariance grew along a direction
+the scan hardly constrains (``weakly_constrained``) or, as no searched pose fitted
+well, to the whole window (``poor_fit``); the window was searched again twice as wide
+(``search_widened``); from a start moved a little off the prediction the matcher
+stopped elsewhere, and the covariance covers that pose (``other_basin``,
+:mod:`laser_odom.core.registration.basins`)."""
 
 
 def say_why(events: EventLog, registration: Registration, verdict: MatchVerdict,
@@ -49,3 +66,25 @@ def say_why(events: EventLog, registration: Registration, verdict: MatchVerdict,
         events.warn('ambiguous', f'match at {at} is ambiguous: '
                     f'{registration.describe_alternatives()}; reported degenerate '
                     'with a covariance that covers the alternatives')
+
+
+def say_evidence(events: EventLog, registration: Registration, status: str, at: str) -> None:
+    """Count and say (throttled) what the evidence made of an integrated match."""
+    match = registration.match
+    if registration.widened:
+        events.count('search_widened')
+    if status != 'rejected' and match.extra.get('predicted'):
+        events.warn('prediction_used', f'match at {at} is blind along a direction; '
+                    f'{PREDICTION_SOURCES[match.extra["predicted"]]} stands in there, '
+                    'with its measured error as the covariance')
+    if status != 'rejected' and match.extra.get('poor_fit'):
+        window = registration.window
+        events.warn('poor_fit', f'match at {at} fits poorly (surface fit '
+                    f'{match.extra["surface_fit"]:.2f}, the best pose in '
+                    f'+-{window.linear:.1f} m / +-{math.degrees(window.angular):.0f}'
+                    ' deg): its covariance covers the window')
+    elif status != 'rejected' and match.extra.get('weak'):
+        sigma = np.sqrt(np.linalg.eigvalsh(match.extra['surface_covariance'])[-1])
+        events.warn('weakly_constrained', f'match at {at} is weakly constrained: '
+                    f'poses up to {sigma:.2f} m away (1 sigma) fit about as '
+                    'well; its covariance covers them')

@@ -12,9 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from laser_odom.core.matchers import MatchResult
+from laser_odom.core.pipeline.announce import EVIDENCE_EVENTS
 from laser_odom.core.preprocess.deskew import DESKEW_EVENTS
 from laser_odom.core.registration.map_registrar import MAP_EVENTS
-from laser_odom.core.registration.registrar import EVIDENCE_EVENTS, SEARCH_TRIGGERS
+from laser_odom.core.registration.registrar import SEARCH_TRIGGERS
 
 OUTCOMES = ('scans_in', 'processed', 'initialized', 'matched', 'degenerate', 'rejected')
 """Counters of what became of the scans; every other counter is a skip reason, a

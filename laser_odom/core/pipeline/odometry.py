@@ -20,7 +20,7 @@ from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import matcher_class, MatchResult, ScanMatcher
 from laser_odom.core.motion.model import fused_with_prediction, MotionModel
-from laser_odom.core.pipeline.announce import say_why
+from laser_odom.core.pipeline.announce import say_evidence, say_why
 from laser_odom.core.pipeline.estimate import OdometryEstimate, UNKNOWN_TWIST_VARIANCE
 from laser_odom.core.pipeline.reconfigure import LiveReconfiguration
 from laser_odom.core.pipeline.reference import ReferenceKeeping
@@ -28,7 +28,7 @@ from laser_odom.core.preprocess.deskew import (
     deskew_change, deskewed, MidSweepTwist, sweeps_after_stamp, SweepTwist, twist_of_step)
 from laser_odom.core.preprocess.validation import REJECTIONS, ScanValidator
 from laser_odom.core.registration.acceptance import (
-    judge_again, judge_match, measured_covariance)
+    judge_again, judge_match, measured_covariance, published_covariance)
 from laser_odom.core.registration.map_registrar import JudgedMatch, MapRegistrar
 from laser_odom.core.registration.registrar import Registrar
 from laser_odom.core.scan.laser_scan import LaserScan, ScanPoints
@@ -207,8 +207,8 @@ class OdometryPipeline(LiveReconfiguration, ReferenceKeeping):
                                                  current, guess, self.config, untrusted)
         say_why(self.events, judged.registration, judged.verdict, guess, stamp_ns,
                 self.config)
-        self.registrar.tell(judged.registration, judged.verdict.status,
-                            f't={stamp_ns * 1e-9:.3f}')
+        say_evidence(self.events, judged.registration, judged.verdict.status,
+                     f't={stamp_ns * 1e-9:.3f}')
         if current.times is not None and judged.verdict.status != 'rejected':
             current, judged = self._deskew_again(current, sweep_dt, judged)
         if self.map_registrar is not None:
@@ -216,9 +216,9 @@ class OdometryPipeline(LiveReconfiguration, ReferenceKeeping):
                                                            self.keyframe_pose)
         registration, verdict = judged.registration, judged.verdict
         new_pose = se2.compose(self.keyframe_pose, verdict.pose)
-        step_covariance, model = step_error(judged.verdict.status, judged.verdict.covariance,
-                                            self.matcher.config, judged.from_map,
-                                            judged.doubt)
+        step_covariance, model = step_error(
+            verdict.status, published_covariance(verdict, registration.match),
+            self.matcher.config, judged.from_map, judged.doubt)
         self.scans_after_keyframe += 1
         self.uncertainty = self.keyframe_uncertainty.propagate(
             self.keyframe_pose, verdict.pose, step_covariance, model,

@@ -121,6 +121,23 @@ def judge_match(registration: Registration, guess: se2.Pose, config: PipelineCon
     return verdict
 
 
+def published_covariance(verdict: MatchVerdict, match: MatchResult) -> np.ndarray:
+    """Return the covariance a judged step is published with: it covers the other basins.
+
+    From starts a little off the prediction the matcher stopped elsewhere with as good
+    a fit (:mod:`.basins`, the match's ``basins``): the pose stands, the covariance
+    covers those poses (:func:`covering_covariance`) and compounds as the step's own
+    does (:func:`.pose_uncertainty.step_error`: against the local map the map anchors
+    a basin as it anchors the match). Only what is published grows: the tests that
+    compare a step with another within their covariances (the local map's second
+    opinions) keep the matcher's own, so no pose changes.
+    """
+    basins = match.extra.get('basins')
+    if not basins:
+        return verdict.covariance
+    return covering_covariance(verdict.pose, verdict.covariance, basins)
+
+
 def measured_covariance(match: MatchResult, config: AcceptanceConfig,
                         length_scale: float) -> np.ndarray:
     """Return the covariance of what the scans alone say about a match's pose.

@@ -27,6 +27,7 @@ from laser_odom.core.configuration.pipeline import PipelineConfig
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import MatchResult, ScanMatcher
 from laser_odom.core.motion.blind_prior import Prediction, StepHistory
+from laser_odom.core.registration.basins import other_basins, record_other_basins
 from laser_odom.core.registration.doubt import PredictionDoubt
 from laser_odom.core.registration.recovery import search_and_choose
 from laser_odom.core.registration.rejection import (
@@ -47,16 +48,6 @@ SEARCH_TRIGGERS = {
     'always': 'global_search is always',
 }
 """Why the global search ran, by trigger name (counted as ``search_<trigger>``)."""
-
-PREDICTION_SOURCES = {'prior': 'the prediction (the prior)',
-                      'last_step': "the last well-constrained step's motion (steady rate)"}
-"""What stood in for a blind direction, by :attr:`.Prediction.source`."""
-
-EVIDENCE_EVENTS = ('weakly_constrained', 'poor_fit', 'prediction_used', 'search_widened')
-"""Counted events of the evidence a match had: its covariance grew along a direction
-the scan hardly constrains (``weakly_constrained``) or, as no searched pose fitted
-well, to the whole window (``poor_fit``); the window was searched again twice as wide
-(``search_widened``)."""
 
 WEAK_FLAGS = ('weak', 'ambiguous', 'poor_fit', 'predicted')
 """Extras of a match that was not well constrained
@@ -214,6 +205,8 @@ class Registrar:
                     else doubt)
             else:
                 registration = Registration(local, local_failure=failure)
+                if not failure:
+                    self.check_basins(matcher, reference, current, guess, local, config)
         if not untrusted and verify and registration.match.converged:
             self.doubt.record(guess, registration.match.pose,
                               [pose for pose, _ in registration.alternatives],
@@ -235,27 +228,6 @@ class Registrar:
                 bool(np.any(self.carried)))
         return self.history.last_step(reference.stamp_ns, current.stamp_ns)
 
-    def tell(self, registration: Registration, status: str, at: str) -> None:
-        """Count and say (throttled) what the evidence made of an integrated match."""
-        match = registration.match
-        if registration.widened:
-            self.events.count('search_widened')
-        if status != 'rejected' and match.extra.get('predicted'):
-            self.events.warn('prediction_used', f'match at {at} is blind along a direction; '
-                             f'{PREDICTION_SOURCES[match.extra["predicted"]]} stands in there, '
-                             'with its measured error as the covariance')
-        if status != 'rejected' and match.extra.get('poor_fit'):
-            window = registration.window
-            self.events.warn('poor_fit', f'match at {at} fits poorly (surface fit '
-                             f'{match.extra["surface_fit"]:.2f}, the best pose in '
-                             f'+-{window.linear:.1f} m / +-{math.degrees(window.angular):.0f}'
-                             ' deg): its covariance covers the window')
-        elif status != 'rejected' and match.extra.get('weak'):
-            sigma = np.sqrt(np.linalg.eigvalsh(match.extra['surface_covariance'])[-1])
-            self.events.warn('weakly_constrained', f'match at {at} is weakly constrained: '
-                             f'poses up to {sigma:.2f} m away (1 sigma) fit about as '
-                             'well; its covariance covers them')
-
     def try_local(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                   guess: se2.Pose, config: PipelineConfig) -> tuple[Registration, bool]:
         """Run the match from a trusted prediction; return it and whether it passed.
@@ -274,6 +246,7 @@ class Registrar:
                   and not self.doubted(local, guess, config, reference.virtual))
         if passed:
             self.doubt.record(guess, local.pose)
+            self.check_basins(matcher, reference, current, guess, local, config)
         registration = Registration(local)
         registration.prediction = self.predict(guess, '', reference, current)
         return registration, passed
@@ -371,6 +344,21 @@ class Registrar:
             return (f'{match.inlier_ratio:.0%} of the points paired against the usual '
                     f'{inliers:.0%}')
         return describe_rejection(reason, match, guess, config)
+
+    def check_basins(self, matcher: ScanMatcher, reference: ScanPoints,
+                     current: ScanPoints, guess: se2.Pose, match: MatchResult,
+                     config: PipelineConfig) -> None:
+        """Record the other basins of a match from the prediction (:mod:`.basins`).
+
+        A start's match counts when it passes :meth:`local_failure` from that start.
+        """
+        def rematch(start: se2.Pose) -> MatchResult | None:
+            landed = self.local_match(matcher, reference, current, start, True)
+            return None if self.local_failure(landed, start, config,
+                                              reference.virtual) else landed
+
+        record_other_basins(match, other_basins(rematch, match, guess, current.length_scale),
+                            self.events)
 
     def local_match(self, matcher: ScanMatcher, reference: ScanPoints,
                     current: ScanPoints, guess: se2.Pose,
