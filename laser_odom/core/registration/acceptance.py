@@ -130,7 +130,9 @@ def published_covariance(verdict: MatchVerdict, match: MatchResult) -> np.ndarra
     does (:func:`.pose_uncertainty.step_error`: against the local map the map anchors
     a basin as it anchors the match). Only what is published grows: the tests that
     compare a step with another within their covariances (the local map's second
-    opinions) keep the matcher's own, so no pose changes.
+    opinions) keep the matcher's own. A step that was not well constrained carries it
+    on as the velocity's error (``velocity_update: replace``); measured, no pose of
+    the real logs or the fast logs changed.
     """
     basins = match.extra.get('basins')
     if not basins:
