@@ -76,6 +76,11 @@ SHORT_OF_TARGET: dict[tuple[str, str], dict[str, str]] = {
     ('nicp', 'fr079'): {'drift': f'0.40 [0.42] %; {MEMORY}', 'ATE': '0.40 [0.48] m'},
     ('nicp', 'mit-csail'): {'drift': f'0.79 [0.99] %; {MEMORY}'},
     ('plicp', 'intel'): {'drift': '0.83 [1.39] %, the documented copy 0.51 %'},
+    ('imls', 'fr079'): {
+        'NEES': '0.98 on the documented copy, 0.7-1.2 over 5 copies: too pessimistic; 1.00 '
+                "before the published covariance covered the matcher's other basins (fr079 "
+                'copy 1: 36 map matches checked, 23 stopped elsewhere from a start 3 sigma '
+                'off)'},
     ('imls', 'intel'): {'drift': '0.39 [0.66] %, median [worst] of 5 copies, the documented '
                                  'copy 0.66 % (issue 37 stability)',
                         'ATE': '0.15 [0.38] m, the documented copy 0.38 m',
