@@ -17,7 +17,8 @@ from laser_odom.core.evaluation.benchmark import benchmark_run, REAL_REFERENCE_N
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import MatchResult, ScanMatcher
 from laser_odom.core.registration.acceptance import judge_match, published_covariance
-from laser_odom.core.registration.basins import CHECKED_SIGMA, MIN_SHIFT, other_basins
+from laser_odom.core.registration.basins import (
+    CHECKED_SIGMA, MIN_SHIFT, other_basins, record_other_basins)
 from laser_odom.core.registration.registrar import Registrar
 from laser_odom.core.scan.laser_scan import ScanPoints
 
@@ -116,6 +117,19 @@ def test_the_covariance_covers_a_basin_a_nearby_start_reaches_and_the_pose_stays
     assert offset @ np.linalg.solve(published, offset) < 1.0
     match.extra.pop('basins')
     assert published_covariance(verdict, match) is verdict.covariance
+
+
+def test_a_start_that_comes_back_to_the_same_basin_is_not_counted():
+    """Back within the matcher's tolerance (0.1 mm): recorded, covered, not counted."""
+    events = EventLog(lambda message: None)
+    match = match_at((0.0, 0.0, 0.0), weak_along_x(0.015))
+    record_other_basins(match, [se2.pose(1e-4, 0.0, 0.0), se2.pose(-1e-4, 0.0, 0.0)],
+                        events)
+    assert len(match.extra['basins']) == 2 and events.counters['other_basin'] == 0
+    record_other_basins(match, [se2.pose(0.02, 0.0, 0.0)], events)  # 1.3 sigma off
+    assert events.counters['other_basin'] == 1
+    record_other_basins(match, [], events)  # nothing checked: nothing kept
+    assert len(match.extra['basins']) == 1
 
 
 def test_a_corridor_step_stuck_near_the_prediction_is_announced(real_log):

@@ -36,6 +36,7 @@ from laser_odom.core import se2
 from laser_odom.core.events import EventLog
 from laser_odom.core.matchers import MatchResult
 from laser_odom.core.uncertainty.degeneracy import degenerate_directions, metric_scale
+from laser_odom.core.uncertainty.pose_uncertainty import nees
 
 CHECKED_SIGMA = 0.01
 """A match whose weakest direction (metric units: rotation as the arc at the scan's RMS
@@ -78,10 +79,12 @@ def record_other_basins(match: MatchResult, basins: list[np.ndarray], events: Ev
     """Keep ``basins`` in ``match.extra['basins']``, which the published covariance covers.
 
     :func:`.acceptance.published_covariance`; counted as ``other_basin`` when one lies
-    elsewhere than the match.
+    elsewhere: beyond one standard deviation of the match's own covariance. A start
+    that came back to the same basin stops within the matcher's convergence tolerance
+    of the match, not exactly on it, and is not counted.
     """
     if not basins:
         return
     match.extra['basins'] = basins
-    if any(not np.allclose(pose, match.pose) for pose in basins):
+    if any(nees(pose - match.pose, match.covariance) > 1.0 for pose in basins):
         events.count('other_basin')
