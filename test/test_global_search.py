@@ -55,6 +55,41 @@ def test_bound_grids_hold_the_maximum_of_their_window():
             assert table[i, j] == fine[i:i + window, j:j + window].max()
 
 
+def test_the_fine_table_is_the_kernel_of_the_nearest_surface_cell():
+    """Each cell holds the largest 255 exp(-d^2 / 2 sigma^2) over the surface's cells."""
+    rng = np.random.default_rng(5)
+    surface = rng.uniform(-1.5, 1.5, (60, 2))
+    resolution, sigma = 0.1, 0.12
+    grid = LikelihoodGrid(surface, resolution, sigma, np.array([-20, -20]), (40, 40), [1, 4])
+    fine = grid.fine.reshape(grid.shape)[:40, :40]
+    marked = np.unique(np.rint(surface / resolution).astype(int), axis=0)
+    cells = np.stack(np.meshgrid(np.arange(-20, 20), np.arange(-20, 20), indexing='ij'),
+                     axis=-1).reshape(-1, 2)
+    squared = np.sum(np.square(cells[:, None, :] - marked[None, :, :]), axis=2) * resolution ** 2
+    weights = np.rint(LIKELIHOOD_STEPS * np.exp(-0.5 * squared / sigma ** 2))
+    reach = math.ceil(3.0 * sigma / resolution)  # the kernel's extent (KERNEL_SIGMAS)
+    near = np.max(np.abs(cells[:, None, :] - marked[None, :, :]), axis=2) <= reach
+    expected = np.max(np.where(near, weights, 0), axis=1).reshape(40, 40)
+    np.testing.assert_array_equal(fine, expected)
+
+
+def test_a_leaf_scores_the_fine_table_where_its_pose_puts_each_point():
+    """A leaf's exact score sums the fine table at every point's cell, rounded."""
+    reference, current = office_pair(20.0, se2.pose(0.1, 0.05, math.radians(5.0)))
+    tree = search_tree(reference, current, se2.pose(0.05, 0.0, 0.02),
+                       SearchWindow(linear=0.3, angular=math.radians(10.0)))
+    grid = tree.grid
+    fine = grid.fine.reshape(grid.shape)
+    leaves = tree.leaves()[np.random.default_rng(2).choice(len(tree.leaves()), 50)]
+    expected = []
+    for j, i, k in leaves:
+        angle = tree.theta0 + j * tree.angle_step
+        rotated = se2.transform_points(se2.pose(0.0, 0.0, angle), tree.points)
+        cells = np.rint(rotated / grid.resolution).astype(int) + tree.translation_low + (i, k)
+        expected.append(int(fine[cells[:, 0] - grid.low[0], cells[:, 1] - grid.low[1]].sum()))
+    np.testing.assert_array_equal(tree.scores(0, leaves), expected)
+
+
 def test_branch_and_bound_finds_every_near_best_leaf_of_the_exhaustive_search():
     reference, current = office_pair(12.0, se2.pose(0.2, -0.1, math.radians(8.0)))
     window = SearchWindow(linear=0.4, angular=math.radians(12.0))

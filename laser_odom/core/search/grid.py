@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 LIKELIHOOD_STEPS = 255
@@ -66,24 +67,19 @@ class LikelihoodGrid:
         with np.errstate(invalid='ignore'):
             cells = np.rint(surface / self.resolution) - self.low
         inside = np.all((cells >= 0) & (cells < np.array(shape)), axis=1)
-        cells = cells[inside].astype(np.int64)
+        cells = np.unique(cells[inside].astype(np.int64), axis=0)
         if len(cells) == 0:
             return table
-        marked = np.zeros(shape, dtype=np.uint8)
-        marked[cells[:, 0], cells[:, 1]] = 1
         reach = int(math.ceil(KERNEL_SIGMAS * self.sigma / self.resolution))
-        rows, cols = shape
+        kernel = []
         for dx in range(-reach, reach + 1):
             for dy in range(-reach, reach + 1):
                 squared = (dx * dx + dy * dy) * self.resolution ** 2
                 weight = int(round(LIKELIHOOD_STEPS * math.exp(-0.5 * squared
                                                                / self.sigma ** 2)))
-                if weight == 0:
-                    continue
-                target = table[max(dx, 0):rows + min(dx, 0), max(dy, 0):cols + min(dy, 0)]
-                source = marked[max(-dx, 0):rows + min(-dx, 0),
-                                max(-dy, 0):cols + min(-dy, 0)]
-                np.maximum(target, source * np.uint8(weight), out=target)
+                if weight > 0:
+                    kernel.append((dx, dy, weight))
+        _dilate(table, cells, np.array(kernel, dtype=np.int64), shape[0], shape[1])
         return table
 
     def _bounds(self, fine: np.ndarray) -> np.ndarray:
@@ -119,6 +115,25 @@ class LikelihoodGrid:
     def table_start(self, window: int) -> int:
         """Return where the bound grid of a window size starts in ``tables``."""
         return self.start[int(window)]
+
+    def table_starts(self, windows: np.ndarray) -> np.ndarray:
+        """Return where the bound grid of each window size starts (sizes among ``windows``)."""
+        return np.searchsorted(self.windows, windows).astype(np.int64) * self.cells
+
+
+@numba.njit(cache=True, nogil=True)
+def _dilate(table: np.ndarray, cells: np.ndarray, kernel: np.ndarray, rows: int,
+            columns: int) -> None:
+    """Raise each cell within ``rows x columns`` to the kernel's weight from a marked cell.
+
+    ``table[c + (dx, dy)] = max(table[c + (dx, dy)], w)`` for every marked cell ``c`` and
+    kernel entry ``(dx, dy, w)``: the grey dilation of the marked cells.
+    """
+    for n in range(len(cells)):
+        for m in range(len(kernel)):
+            row, column = cells[n, 0] + kernel[m, 0], cells[n, 1] + kernel[m, 1]
+            if 0 <= row < rows and 0 <= column < columns and table[row, column] < kernel[m, 2]:
+                table[row, column] = kernel[m, 2]
 
 
 def _widen(table: np.ndarray, shift: int) -> np.ndarray:
