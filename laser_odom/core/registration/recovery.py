@@ -68,12 +68,11 @@ Refine = Callable[[se2.Pose], MatchResult]
 def search_and_choose(refine: Refine, reference: ScanPoints, current: ScanPoints,
                       guess: se2.Pose, config: PipelineConfig, elapsed: float,
                       local: MatchResult | None, trusted: bool,
-                      prediction: Prediction | None, refuted: bool = False) -> Choice:
+                      prediction: Prediction | None) -> Choice:
     """Search the windows around ``guess`` and choose among every refined candidate.
 
     ``elapsed`` [s] is the time since the last good match (the window grows with it);
-    ``local`` the match from a trusted prediction, when it converged, competes too;
-    ``refuted`` tells that it failed its checks (:func:`choose`).
+    ``local`` the match from a trusted prediction, when it converged, competes too.
     """
     search = config.search
     base, grown = search.window(), search.window(elapsed)
@@ -82,11 +81,11 @@ def search_and_choose(refine: Refine, reference: ScanPoints, current: ScanPoints
     choice = None
     for window in windows:
         choice = _round(refine, reference, current, guess, config, window, candidates,
-                        local, trusted, prediction, choice, refuted)
+                        local, trusted, prediction, choice)
     wider = search.widened(windows[-1])
     if wider is not None and search_further(choice, guess, config):
         choice = _round(refine, reference, current, guess, config, wider, candidates,
-                        local, trusted, prediction, choice, refuted)
+                        local, trusted, prediction, choice)
         choice.widened = True
     return choice
 
@@ -94,7 +93,7 @@ def search_and_choose(refine: Refine, reference: ScanPoints, current: ScanPoints
 def _round(refine: Refine, reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
            config: PipelineConfig, window: SearchWindow, candidates: list[MatchResult],
            local: MatchResult | None, trusted: bool, prediction: Prediction | None,
-           last: Choice | None, refuted: bool) -> Choice:
+           last: Choice | None) -> Choice:
     """Search ``window``, add its refined peaks to ``candidates``, choose among all."""
     search = config.search
     result = correlative_search(
@@ -111,7 +110,7 @@ def _round(refine: Refine, reference: ScanPoints, current: ScanPoints, guess: se
     elif last is not None:
         result = last.search
     return choose(reference, current, guess, config, window, result, candidates, local,
-                  trusted, prediction, refuted)
+                  trusted, prediction)
 
 
 def _beyond(match: MatchResult, guess: se2.Pose, config: PipelineConfig) -> bool:
@@ -140,13 +139,11 @@ def search_further(choice: Choice, guess: se2.Pose, config: PipelineConfig) -> b
 def choose(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
            config: PipelineConfig, window: SearchWindow, result: SearchResult | None,
            candidates: list[MatchResult], local: MatchResult | None, trusted: bool,
-           prediction: Prediction | None, refuted: bool = False) -> Choice:
+           prediction: Prediction | None) -> Choice:
     """Judge the refined candidates by their surface fit (module docstring).
 
     Among candidates that fit alike, the one nearest the trusted guess, or else the
-    blind prediction's translation, is taken: among those that fit well
-    (``global_search_poor_fit``), and with a trusted guess also among poor fits unless
-    the match from it failed its checks (``refuted``, :meth:`.Registrar.register`).
+    blind prediction's translation, is taken.
     """
     search = config.search
     choice = Choice(None, result, window, len(candidates))
@@ -174,20 +171,11 @@ def choose(reference: ScanPoints, current: ScanPoints, guess: se2.Pose,
         weighed[far & (fits < search.global_search_poor_fit)] = 0.0
     best = int(np.argmax(weighed))
     anchor = guess if trusted else (None if prediction is None else prediction.pose)
-    if anchor is not None and (fits[best] >= search.global_search_poor_fit
-                               or (trusted and not refuted)):
+    if anchor is not None and (trusted or fits[best] >= search.global_search_poor_fit):
         # Among poses the scans cannot tell apart, the one nearest a trusted prediction
         # is the best guess (nearest the last step's translation: its turn is not
         # predicted; and only among poses that fit well - a robot that reverses is not
-        # where it went before). Where even the best fits poorly and the prediction's
-        # own match failed its checks, the fits differ by the little the scans share
-        # and the prediction is refuted: the best fit is the better evidence (fr079
-        # every 10th scan 0.1 s apart, imls, scan 132: an 88 deg turn found at a fit
-        # of 0.39 and a pose near the prediction at 0.38 was taken; without a prior
-        # the turn was). A prediction doubted only for its size stays the tie-break,
-        # and so does a guess that is itself a match just found (matched again after
-        # de-skewing; the simulated rplidar spinning, plicp against the map: a 0.81
-        # fit, de-skewed, gave way to a poor fit 15 deg off the truth).
+        # where it went before).
         alike = weighed >= ambiguity * weighed[best]
         if not trusted:  # the same turn: the last step cannot tell turns apart
             turns = np.array([se2.wrap_angle(m.pose[2] - pool[best].pose[2]) for m in pool])

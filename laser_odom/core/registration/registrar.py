@@ -199,8 +199,7 @@ class Registrar:
             if (failure or doubt) and mode == 'recover':
                 registration = self._search(matcher, reference, current, guess, config,
                                             'local_failed' if failure else 'doubtful',
-                                            local, failure, True, prediction,
-                                            bool(failure) and verify)
+                                            local, failure, True, prediction)
                 registration.failure_detail = (
                     self.describe_failure(failure, local, guess, config) if failure
                     else doubt)
@@ -389,17 +388,14 @@ class Registrar:
     def _search(self, matcher: ScanMatcher, reference: ScanPoints, current: ScanPoints,
                 guess: se2.Pose, config: PipelineConfig, trigger: str,
                 local: MatchResult | None, failure: str, trusted: bool,
-                prediction: Prediction | None, refuted: bool = False) -> Registration:
+                prediction: Prediction | None) -> Registration:
         """Search the windows, refine the best poses, keep the candidate that fits best.
-
-        ``refuted``: the match from a trusted prediction failed its checks (not a
-        guess that is itself a match just found, matched again after de-skewing).
 
         :func:`.recovery.search_and_choose`; its refinements are :meth:`local_match`.
         """
         choice = search_and_choose(
             lambda pose: self.local_match(matcher, reference, current, pose), reference,
-            current, guess, config, self.elapsed_s, local, trusted, prediction, refuted)
+            current, guess, config, self.elapsed_s, local, trusted, prediction)
         match = choice.match
         if match is None:
             match = local if local is not None else MatchResult.failure(
