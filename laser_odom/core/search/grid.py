@@ -108,10 +108,6 @@ class LikelihoodGrid:
         """Return the fine table, flattened."""
         return self.tables[:self.shape[0] * self.shape[1]]
 
-    def flat_index(self, cells: np.ndarray) -> np.ndarray:
-        """Return the flat index of integer cells (..., 2) in the fine table."""
-        return (cells[..., 0] - self.low[0]) * self.shape[1] + (cells[..., 1] - self.low[1])
-
     def table_start(self, window: int) -> int:
         """Return where the bound grid of a window size starts in ``tables``."""
         return self.start[int(window)]
