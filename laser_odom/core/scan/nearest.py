@@ -23,6 +23,8 @@ import math
 import numba
 import numpy as np
 
+from laser_odom.core.scan.bearings import approximate_atan2, bearing_place, settled_place
+
 HINT_STEPS = 16
 """Steps from a hinted position to the query's place among the bearings before a
 binary search takes over."""
@@ -136,7 +138,7 @@ def k_nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: n
         best[:] = -1
         found = 0
         radius2 = qx * qx + qy * qy
-        start = np.searchsorted(bearings, math.atan2(qy, qx))
+        start = bearing_place(bearings, qx, qy)
         # Walk both ways at once, always on the side whose next point may lie closer, so
         # that the k-th distance (the reach) shrinks as early as it can. Positions wrap
         # around the ring by comparison (no integer division in the loop).
@@ -198,7 +200,7 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
     limit2 = max_distance * max_distance
     for i in range(count):
         qx, qy = queries[i, 0], queries[i, 1]
-        radius2, bearing = qx * qx + qy * qy, math.atan2(qy, qx)
+        radius2, bearing = qx * qx + qy * qy, approximate_atan2(qy, qx)
         best2, best = limit2, -1
         hint = hints[i]
         start = -1
@@ -218,6 +220,8 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
                 start = -1
         if start < 0:
             start = np.searchsorted(bearings, bearing)
+        if not settled_place(bearings, bearing, start):  # the exact bearing decides
+            start = np.searchsorted(bearings, math.atan2(qy, qx))
         # The walks of :func:`k_nearest_by_bearing` on scalars: k = 1 is every matcher's.
         steps = n
         for direction in (1, -1):

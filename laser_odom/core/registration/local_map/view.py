@@ -27,13 +27,19 @@ import numpy as np
 from laser_odom.core.registration.local_map.cells import (
     ALIVE, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, HITS, LAST_SEEN,
     line_normal, MEAN_X, MEAN_Y, S_XX, S_XY, S_YY, WEIGHT)
+from laser_odom.core.scan.bearings import bearing_bin
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
-def _bin(qx: float, qy: float, bin_angle: float, bins: int) -> int:
-    """Return the bearing bin (0 at -pi) of a sensor-frame direction."""
-    b = int((math.atan2(qy, qx) + math.pi) / bin_angle)
-    return min(max(b, 0), bins - 1)
+def _wrapped(b: int, bins: int) -> int:
+    """Return bin ``b`` taken around the circle, for ``-bins <= b < 2 bins``.
+
+    ``b % bins`` for the footprints' range of offsets, without an integer division
+    (the costliest step of the cell loops, which mostly visit one bin per cell).
+    """
+    if b < 0:
+        return b + bins
+    return b - bins if b >= bins else b
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
@@ -80,13 +86,13 @@ def render_view(floats: np.ndarray, ints: np.ndarray, pose: np.ndarray, sensor: 
         r = math.sqrt(qx * qx + qy * qy)
         if r > max_range or r <= 1e-6:
             continue
-        b = _bin(qx, qy, bin_angle, bins)
+        b = bearing_bin(qx, qy, bin_angle, bins)
         used[count], cell_bin[count], cell_range[count] = c, b, r
         local[count, 0], local[count, 1] = bx, by
         count += 1
         span = _footprint(r, half_cell, bin_angle)
         for o in range(-span, span + 1):
-            k = (b + o) % bins
+            k = _wrapped(b + o, bins)
             nearest[k] = min(nearest[k], r)
     # Per bin: weight, weighted x and y; block weight, weighted centroid, raw second moments.
     sums = np.zeros((bins, 9))
@@ -200,11 +206,13 @@ def seen_through(floats: np.ndarray, ints: np.ndarray, pose: np.ndarray,
         qx = cos_t * dx + sin_t * dy - sensor[0]
         qy = -sin_t * dx + cos_t * dy - sensor[1]
         r = math.sqrt(qx * qx + qy * qy)
-        b = _bin(qx, qy, bin_angle, bins)
+        b = bearing_bin(qx, qy, bin_angle, bins)
+        if measured[b] < 0.0 or measured[b] <= r + margin:
+            continue  # its own bin decides most cells: no footprint to walk
         span = max(_footprint(r, half_cell, bin_angle), 1)
         through = True
         for o in range(-span, span + 1):
-            m = measured[(b + o) % bins]
+            m = measured[_wrapped(b + o, bins)]
             if m < 0.0 or m <= r + margin:
                 through = False
                 break
@@ -227,6 +235,6 @@ def ranges_by_bin(points: np.ndarray, sensor: np.ndarray, bin_angle: float,
     out = np.full(bins, -1.0)
     for k in range(points.shape[0]):
         qx, qy = points[k, 0] - sensor[0], points[k, 1] - sensor[1]
-        b = _bin(qx, qy, bin_angle, bins)
+        b = bearing_bin(qx, qy, bin_angle, bins)
         out[b] = max(out[b], math.sqrt(qx * qx + qy * qy))
     return out
