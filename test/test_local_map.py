@@ -14,6 +14,7 @@ from laser_odom.core.configuration.pipeline import LocalMapConfig
 from laser_odom.core.registration.local_map.cells import ALIVE, EMPTY, KEY
 from laser_odom.core.registration.local_map.map import LocalMap, MapGeometry
 from laser_odom.core.registration.local_map.reference import MapReference, MAX_REFUSED
+from laser_odom.core.registration.local_map.view import render_view
 from laser_odom.core.scan.laser_scan import LaserMounting, ScanPoints
 from laser_odom.core.simulation.geometry import rectangle, stack, wall
 from laser_odom.core.simulation.raycast import cast_rays
@@ -88,6 +89,30 @@ def test_the_hash_finds_every_cell_after_many_insertions_and_removals():
     assert set(local_map._slot_keys[stored]) == set(local_map._ints[alive, KEY])
     # Bounded by the radius around the last pose: nothing of the corridor's start.
     assert np.max(np.hypot(*(means - pose[:2]).T)) <= 8.0 + 0.1
+
+
+def test_the_loops_over_cells_see_every_cell_and_skip_rows_never_used():
+    # The same churn with a roomy budget: cells come and go, rows are reused, and the
+    # loops of the view, the carving and the staleness check stop at the rows ever in use.
+    doors = [(10.0, 11.0), (30.0, 31.0)]
+    corridor = stack(wall((-5.0, -1.0), (60.0, -1.0)), wall((-5.0, 1.0), (60.0, 1.0), doors))
+    local_map = LocalMap(geometry(radius=8.0, max_cells=30000, max_age=20))
+    most = 0
+    for k in range(120):
+        pose = se2.pose(0.2 * k, 0.05 * math.sin(0.1 * k), 0.02 * math.sin(0.3 * k))
+        local_map.insert(scan_points(corridor, pose), pose, SENSOR, BIN)
+        most = max(most, len(local_map))
+        floats, ints = local_map._used()
+        assert len(ints) >= most and not local_map._ints[len(ints):].any()  # never touched
+        assert local_map._ints[len(ints) - 1].any()  # and the last row visited was
+        assert np.array_equal(np.flatnonzero(ints[:, ALIVE]),
+                              np.flatnonzero(local_map._ints[:, ALIVE]))
+    assert most < 3000 and len(local_map) < most
+    whole = render_view(local_map._floats, local_map._ints, pose, SENSOR, BIN, 30.0, 0.1,
+                        0.025, 1, local_map.insertions)
+    assert np.array_equal(local_map.view(pose, SENSOR, BIN, 30.0).points, whole[:, :2])
+    local_map.clear()
+    assert len(local_map._used()[1]) == 0
 
 
 def cells_within(local_map: LocalMap, centre, radius: float) -> int:

@@ -67,6 +67,7 @@ class LocalMap:
         self._free = np.arange(capacity - 1, -1, -1, dtype=np.int64)
         self._free_count = np.array([capacity], dtype=np.int64)
         self._touched = np.zeros(0, dtype=np.int64)
+        self._used_rows = 0
         self.insertions = 0
         self._refreshes = 0
 
@@ -78,6 +79,7 @@ class LocalMap:
         self._slot_cells.fill(0)
         self._free[:] = np.arange(len(self._free) - 1, -1, -1, dtype=np.int64)
         self._free_count[0] = len(self._free)
+        self._used_rows = 0
         self.insertions = 0
         self._refreshes = 0
 
@@ -95,6 +97,16 @@ class LocalMap:
         """Return the cell (row of the tables) holding odom-frame ``point``, -1 if none."""
         key = cell_key(float(point[0]), float(point[1]), 1.0 / self.geometry.resolution)
         return int(find_cell(self._slot_keys, self._slot_cells, key))
+
+    def _used(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return the rows of the tables that ever held a cell (views, not copies).
+
+        The free list hands out rows from the lowest up and takes freed ones back on
+        top, so rows past the most ever in use at once were never touched: the loops
+        over every cell (view, carving, staleness) stop there instead of at the
+        budget (``max_cells``), which is mostly headroom.
+        """
+        return self._floats[:self._used_rows], self._ints[:self._used_rows]
 
     @property
     def nbytes(self) -> int:
@@ -118,7 +130,7 @@ class LocalMap:
         bins = max(int(math.ceil(2.0 * math.pi / bin_angle)), 1)
         measured = ranges_by_bin(np.ascontiguousarray(points, dtype=float), sensor,
                                  bin_angle, bins)
-        gone = seen_through(self._floats, self._ints, pose, sensor, measured, bin_angle,
+        gone = seen_through(*self._used(), pose, sensor, measured, bin_angle,
                             CARVE_MARGIN + 2.0 * geometry.resolution,
                             0.5 * geometry.resolution)
         self._remove(gone, refresh=True)
@@ -129,9 +141,10 @@ class LocalMap:
         touched = add_points(world, 1.0 / geometry.resolution, geometry.max_weight,
                              self.insertions, self._floats, self._ints, self._slot_keys,
                              self._slot_cells, self._free, self._free_count, self._touched)
+        self._used_rows = max(self._used_rows, len(self._free) - int(self._free_count[0]))
         self._refresh(self._touched[:touched])
         self._remove(stale_cells(pose[0], pose[1], geometry.radius,
-                                 self.insertions - geometry.max_age, self._floats, self._ints),
+                                 self.insertions - geometry.max_age, *self._used()),
                      refresh=True)
 
     def view(self, pose: se2.Pose, sensor: np.ndarray, bin_angle: float,
@@ -145,7 +158,7 @@ class LocalMap:
         """
         geometry = self.geometry
         sensor = np.asarray(sensor, dtype=float)
-        rows = render_view(self._floats, self._ints, np.asarray(pose, dtype=float), sensor,
+        rows = render_view(*self._used(), np.asarray(pose, dtype=float), sensor,
                            float(bin_angle), float(max_range),
                            OCCLUSION_CELLS * geometry.resolution, 0.5 * geometry.resolution,
                            int(min_hits), self.insertions)
