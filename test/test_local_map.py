@@ -102,7 +102,7 @@ def test_the_loops_over_cells_see_every_cell_and_skip_rows_never_used():
         pose = se2.pose(0.2 * k, 0.05 * math.sin(0.1 * k), 0.02 * math.sin(0.3 * k))
         local_map.insert(scan_points(corridor, pose), pose, SENSOR, BIN)
         most = max(most, len(local_map))
-        floats, ints = local_map._used()
+        _, ints = local_map._used()
         assert len(ints) >= most and not local_map._ints[len(ints):].any()  # never touched
         assert local_map._ints[len(ints) - 1].any()  # and the last row visited was
         assert np.array_equal(np.flatnonzero(ints[:, ALIVE]),

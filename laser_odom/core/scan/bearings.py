@@ -3,7 +3,7 @@
 The map's view and its free-space carving put every map cell in a bearing bin, and
 the nearest-point search finds every query's place among the sorted bearings of its
 reference, each ICP iteration again: ``atan2`` is the largest single cost of those
-loops (about 28 ns a call here, against some 6 ns for a polynomial). Only a few
+loops (about 25-28 ns a call here, against some 7 ns for a polynomial). Only a few
 answers depend on a bearing's last digits, though - a bin is an integer, a place an
 index - so each is computed from :func:`approximate_atan2`, whose error is bounded by
 :data:`ATAN2_ERROR`, and ``math.atan2`` is called only when the approximate bearing
