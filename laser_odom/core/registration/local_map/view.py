@@ -181,6 +181,16 @@ def _ray_on_surface(x: float, y: float, cx: float, cy: float, a: float, h: float
     return px, py
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _not_past(reading: float, reach: float) -> bool:
+    """Tell whether a bin's ``reading`` fails to show the beams passing ``reach``.
+
+    No reading (-1: no return, outside the field of view) says nothing; one at or
+    short of ``reach`` stopped at the cell or before it.
+    """
+    return reading < 0.0 or reading <= reach
+
+
 @numba.njit(cache=True, nogil=True)
 def seen_through(floats: np.ndarray, ints: np.ndarray, pose: np.ndarray,
                  sensor: np.ndarray, measured: np.ndarray, bin_angle: float,
@@ -207,13 +217,12 @@ def seen_through(floats: np.ndarray, ints: np.ndarray, pose: np.ndarray,
         qy = -sin_t * dx + cos_t * dy - sensor[1]
         r = math.sqrt(qx * qx + qy * qy)
         b = bearing_bin(qx, qy, bin_angle, bins)
-        if measured[b] < 0.0 or measured[b] <= r + margin:
+        if _not_past(measured[b], r + margin):
             continue  # its own bin decides most cells: no footprint to walk
         span = max(_footprint(r, half_cell, bin_angle), 1)
         through = True
         for o in range(-span, span + 1):
-            m = measured[_wrapped(b + o, bins)]
-            if m < 0.0 or m <= r + margin:
+            if _not_past(measured[_wrapped(b + o, bins)], r + margin):
                 through = False
                 break
         if not through:
