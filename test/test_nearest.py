@@ -43,6 +43,16 @@ def test_a_scan_ring_across_the_back_agrees_and_finds_its_own_points():
     assert np.array_equal(got[1], want[1]) and np.allclose(got[0], want[0])
 
 
+def test_a_query_that_starts_from_its_predecessors_answer_still_breaks_ties_by_index():
+    # A query without a hint starts from the previous query's nearest point: here the
+    # second query's, which is equally near to it as point 0 is. Ties go to the lower
+    # index whatever the start.
+    points = np.array([[1.0, 1.0], [1.0, -1.0], [4.0, 0.0]])
+    queries = np.array([[1.0, -0.9], [1.0, 0.0], [1.0, 0.0]])
+    distance, index = BearingIndex(points).nearest(queries, 2.0)
+    assert index.tolist() == [1, 0, 0] and distance[1] == distance[2] == 1.0
+
+
 def test_queries_at_the_origin_and_points_at_the_origin():
     points = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, -0.5]])
     queries = np.array([[0.0, 0.0], [0.1, 0.0], [-0.2, -0.2], [5.0, 5.0]])

@@ -187,8 +187,11 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
     ``hints`` (one sorted position per query, -1 for none) are where the previous
     search of the same point ended: an ICP iteration moves the points little, so the
     hinted point bounds the search at once and the query's place among the bearings
-    is a few steps away. The answer does not depend on the hints (the search stays
-    exact); they are overwritten with this search's sorted positions (-1: none found).
+    is a few steps away. A query without a hint (a run's first iteration) takes the
+    previous query's answer instead: the points of a scan come in beam order, so
+    consecutive ones lie a beam apart. The answer does not depend on the hints (the
+    search stays exact: any point's distance bounds the nearest's); they are
+    overwritten with this search's sorted positions (-1: none found).
     """
     n = points.shape[0]
     count = queries.shape[0]
@@ -202,7 +205,7 @@ def nearest_by_bearing(points: np.ndarray, bearings: np.ndarray, directions: np.
         qx, qy = queries[i, 0], queries[i, 1]
         radius2, bearing = qx * qx + qy * qy, approximate_atan2(qy, qx)
         best2, best = limit2, -1
-        hint = hints[i]
+        hint = hints[i] if hints[i] >= 0 or i == 0 else hints[i - 1]
         start = -1
         if hint >= 0:
             dx, dy = points[hint, 0] - qx, points[hint, 1] - qy
