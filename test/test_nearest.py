@@ -44,9 +44,9 @@ def test_a_scan_ring_across_the_back_agrees_and_finds_its_own_points():
 
 
 def test_a_query_that_starts_from_its_predecessors_answer_still_breaks_ties_by_index():
-    # A query without a hint starts from the previous query's nearest point: here the
-    # second query's, which is equally near to it as point 0 is. Ties go to the lower
-    # index whatever the start.
+    # A query without a hint starts from the previous query's nearest point. The second
+    # query lies as near to point 0 as to point 1 and starts from point 1 (the first
+    # query's answer): ties go to the lower index whatever the start.
     points = np.array([[1.0, 1.0], [1.0, -1.0], [4.0, 0.0]])
     queries = np.array([[1.0, -0.9], [1.0, 0.0], [1.0, 0.0]])
     distance, index = BearingIndex(points).nearest(queries, 2.0)
