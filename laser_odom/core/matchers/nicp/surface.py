@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from laser_odom.core.matchers.histograms import wrapped
 from laser_odom.core.scan.laser_scan import ScanPoints
 from laser_odom.core.scan.normals import (
     eigenvalues_2x2, neighbourhoods, normal_variance, normals_from_neighbours, SurfaceNormals)
@@ -202,8 +203,9 @@ def orientation_histogram(normals: np.ndarray, ranges: np.ndarray) -> np.ndarray
     bins = np.floor((angles + np.pi) * (HISTOGRAM_BINS / (2.0 * np.pi))).astype(int)
     hist = np.bincount(np.clip(bins, 0, HISTOGRAM_BINS - 1), weights=ranges,
                        minlength=HISTOGRAM_BINS).astype(float)
-    smooth = (6.0 * hist + 4.0 * (np.roll(hist, 1) + np.roll(hist, -1))
-              + np.roll(hist, 2) + np.roll(hist, -2)) / 16.0
+    padded = wrapped(hist, 2)
+    smooth = (6.0 * hist + 4.0 * (padded[1:-3] + padded[3:-1])
+              + padded[:-4] + padded[4:]) / 16.0
     norm = float(np.linalg.norm(smooth))
     return smooth / norm if norm > 0.0 else smooth
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from laser_odom.core import se2
 from laser_odom.core.matchers.base import MatcherConfig, MatchResult, ScanMatcher
+from laser_odom.core.matchers.histograms import wrapped
 from laser_odom.core.matchers.information import (
     covariance_from_information, point_to_line_information)
 from laser_odom.core.matchers.plicp.segments import (
@@ -286,7 +287,8 @@ def direction_histogram(scan: ScanPoints) -> np.ndarray:
     bins = np.minimum((angle * (DIRECTION_BINS / np.pi)).astype(int), DIRECTION_BINS - 1)
     weight = scan.ranges * (surface.valid & (surface.curvature < FLAT_CURVATURE))
     hist = np.bincount(bins, weight, minlength=DIRECTION_BINS)
-    hist = 0.25 * (np.roll(hist, 1) + 2.0 * hist + np.roll(hist, -1))
+    padded = wrapped(hist, 1)
+    hist = 0.25 * (padded[:-2] + 2.0 * hist + padded[2:])
     scan.cache['plicp_directions'] = hist
     return hist
 
@@ -309,7 +311,8 @@ def rotation_candidates(reference: ScanPoints, current: ScanPoints, guess: float
                                DIRECTION_BINS)
     width = np.pi / DIRECTION_BINS
     offset = (np.arange(DIRECTION_BINS) * width - guess + 0.5 * np.pi) % np.pi - 0.5 * np.pi
-    peak = ((correlation >= np.roll(correlation, 1)) & (correlation > np.roll(correlation, -1))
+    padded = wrapped(correlation, 1)
+    peak = ((correlation >= padded[:-2]) & (correlation > padded[2:])
             & (np.abs(offset) <= window) & (np.abs(offset) > 2.0 * width)
             & (correlation > 0.0))
     order = np.flatnonzero(peak)[np.argsort(-correlation[peak])]
