@@ -106,7 +106,7 @@ def test_motion_model_velocity_is_the_step_over_its_interval():
 
 
 def test_motion_model_scan_period_from_the_last_positive_intervals():
-    """From five recorded intervals on, one under half the median is taken as the median.
+    """From five recorded intervals on, one off a whole number of periods is the median.
 
     Non-positive intervals are not recorded; the period covers the last PERIOD_WINDOW.
     """
@@ -119,8 +119,10 @@ def test_motion_model_scan_period_from_the_last_positive_intervals():
     assert model.effective_dt(0.01) == 0.01  # four intervals: no period yet
     model.update(se2.pose(), 0.1)
     assert model.effective_dt(0.01) == 0.1
-    assert model.effective_dt(0.05) == 0.05  # half the median is not short
-    assert model.effective_dt(0.3) == 0.3
+    assert model.effective_dt(0.05) == 0.1  # half a period: off-period
+    assert model.effective_dt(0.08) == 0.08  # within a quarter period of one
+    assert model.effective_dt(0.14) == 0.1  # 1.4 periods: off-period
+    assert model.effective_dt(0.3) == 0.3  # two scans dropped
     model.forget_intervals()
     assert model.effective_dt(0.01) == 0.01
     window = motion_model()
@@ -130,19 +132,46 @@ def test_motion_model_scan_period_from_the_last_positive_intervals():
     assert window.effective_dt(0.2) == pytest.approx((20 * 0.2 + 5 * 0.01) / 25, rel=1e-12)
 
 
-def test_motion_model_bursty_stamps_are_those_with_over_a_tenth_of_short_intervals():
-    """Over JITTER_FRACTION of intervals below half the median: the mean interval is used."""
+def test_off_period_intervals_are_those_no_sensor_stamps():
+    """A sensor's intervals are a whole number of periods, give or take a quarter."""
+    from laser_odom.core.motion.model import off_period, OFF_PERIOD_TOLERANCE
+    assert OFF_PERIOD_TOLERANCE == 0.25
+    for ratio in (0.76, 1.0, 1.24, 1.76, 2.0, 2.24, 3.1):
+        assert not off_period(ratio * 0.2, 0.2), ratio
+    for ratio in (0.01, 0.49, 0.5, 0.55, 0.74, 1.26, 1.45, 1.74, 2.5):
+        assert off_period(ratio * 0.2, 0.2), ratio
+
+
+def test_motion_model_bursty_stamps_are_those_with_over_a_tenth_off_period():
+    """Over JITTER_FRACTION of intervals off a whole number of periods: the mean is used."""
     from laser_odom.core.motion.model import JITTER_FRACTION
     assert JITTER_FRACTION == 0.1
     cases = (([0.2] * 20 + [0.01] * 5, (20 * 0.2 + 5 * 0.01) / 25),  # 20 % short: bursty
-             ([0.2] * 18 + [0.01] * 2, 0.2),  # exactly 10 % short: regular
-             ([0.2] * 20 + [0.1] * 5, 0.2))  # exactly half the median is not short
+             ([0.2] * 18 + [0.01] * 2, 0.2),  # exactly 10 % off: regular
+             ([0.2] * 20 + [0.11] * 5, (20 * 0.2 + 5 * 0.11) / 25),  # 0.55 periods: off
+             ([0.2] * 20 + [0.29] * 5, (20 * 0.2 + 5 * 0.29) / 25),  # 1.45 periods: off
+             ([0.2] * 20 + [0.4] * 3 + [0.6] * 2, 0.2))  # dropped scans are a sensor's
     for intervals, expected in cases:
         model = motion_model()
         for dt in intervals:
             model.update(se2.pose(), dt)
         assert model.effective_dt(0.2) == pytest.approx(expected, rel=1e-12)
         assert model.effective_dt(0.01) == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_logger_stamping_late_then_early_does_not_scale_the_prediction():
+    """fr079's stamps: a period of motion in every interval, a quarter of them 0.55 or 1.45.
+
+    Scaled by the stamps, the step after a 0.13 s interval makes a velocity 1.8 times
+    the robot's, and the next prediction over 0.34 s is 2.6 steps (fr079 scan 4586).
+    """
+    step = np.array([0.05, 0.0, 0.04])
+    model = motion_model()
+    stamps = [0.235, 0.235, 0.235, 0.13, 0.34, 0.235, 0.235, 0.13] * 6
+    for dt in stamps:
+        model.update(step, dt)
+    for dt in (0.235, 0.13, 0.34):
+        np.testing.assert_allclose(model.predict(dt), step, rtol=0.12)
 
 
 def test_a_velocity_from_a_step_not_well_constrained_carries_its_covariance():

@@ -635,3 +635,25 @@ def test_the_global_search_is_said_with_its_trigger_and_the_local_failure(office
     assert len(searches) == 1
     assert searches[0].startswith(f'global search at {at}: the match from the prediction '
                                   'failed (')
+
+
+def test_a_logger_stamping_late_then_early_publishes_the_robots_twist(office_run):
+    """fr079's stamps: every scan a period apart, a fifth stamped 0.55 then 1.45 periods.
+
+    The twist is the step over the scan period (the mean interval), not over the stamps'
+    interval: over 0.55 of a period it would be 1.8 times the robot's.
+    """
+    intervals = [0.1, 0.1, 0.1, 0.055, 0.145]
+    stamps = np.cumsum([0.0] + [intervals[k % 5] for k in range(len(office_run.scans) - 1)])
+    pipeline = OdometryPipeline(PipelineConfig(matcher='plicp'))
+    truth = office_run.reference.poses
+    checked = 0
+    for k, scan in enumerate(office_run.scans):
+        estimate = pipeline.process(replace_stamp(scan, int(round(stamps[k] * 1e9))))
+        if k < 30:
+            continue
+        velocity = se2.relative(truth[k - 1], truth[k])[0] / 0.1
+        if velocity > 0.1:
+            assert abs(estimate.twist[0] - velocity) < 0.1 * velocity, (k, estimate.twist)
+            checked += 1
+    assert checked > 50

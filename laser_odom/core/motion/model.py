@@ -25,7 +25,23 @@ PERIOD_WINDOW = 25
 """Recent scan intervals from which the nominal sensor period is taken."""
 
 JITTER_FRACTION = 0.1
-"""Share of implausibly short intervals above which scan stamps count as jittery."""
+"""Share of off-period intervals (:func:`off_period`) above which scan stamps count as
+jittery."""
+
+OFF_PERIOD_TOLERANCE = 0.25
+"""How far [periods] an interval may lie from a whole number of periods and still be a
+sensor's own: one period, or a few when scans were dropped."""
+
+
+def off_period(dt: float, period: float) -> bool:
+    """Tell whether an interval cannot be a sensor's: not near a whole number of periods.
+
+    A sensor's stamps lie a period apart, or a few when scans are dropped; an interval
+    shorter than half the period, or more than :data:`OFF_PERIOD_TOLERANCE` from a whole
+    number of periods, was stamped by something else (a logger, a busy driver).
+    """
+    ratio = dt / period
+    return ratio < 0.5 or abs(ratio - round(ratio)) > OFF_PERIOD_TOLERANCE
 
 
 def fused_with_prediction(guess: se2.Pose, prior_covariance: np.ndarray,
@@ -80,8 +96,8 @@ class MotionModel:
         """
         if self._period is None:  # in Python: numpy's overhead on a few dozen floats is larger
             median = statistics.median(self.intervals)
-            short = sum(1 for dt in self.intervals if dt < 0.5 * median)
-            bursty = short / len(self.intervals) > JITTER_FRACTION
+            off = sum(1 for dt in self.intervals if off_period(dt, median))
+            bursty = off / len(self.intervals) > JITTER_FRACTION
             self._period = (median, statistics.fmean(self.intervals), bursty)
         return self._period
 
@@ -92,16 +108,19 @@ class MotionModel:
         dropped - never much less than one. Logger-stamped logs (the Intel lab log) are
         bursty instead: a scan stamped 10 ms after its predecessor by a 5 Hz sensor was
         taken a whole period later, and the next one looks 0.39 s late. When more than
-        ``JITTER_FRACTION`` of the recent intervals are shorter than half their median,
-        the single interval says nothing and the mean interval (the true scan rate)
-        is used; a lone short interval in a regular stream is taken as the median.
+        ``JITTER_FRACTION`` of the recent intervals are off a whole number of periods
+        (:func:`off_period`), the single interval says nothing and the mean interval
+        (the true scan rate) is used. fr079 is such a log: a quarter of its intervals
+        are 0.55 or 1.45 periods, yet its reference moves as far over them as over a
+        whole period (median ratio 1.01 and 1.05; 2.1 over intervals of two periods).
+        A lone off-period interval in a regular stream is taken as one median period.
         """
         if len(self.intervals) < 5:
             return dt
         median, mean, bursty = self._period_statistics()
         if bursty:
             return mean
-        return median if dt < 0.5 * median else dt
+        return median if off_period(dt, median) else dt
 
     def gap_exceeded(self, dt: float, prior_step: se2.Pose | None = None) -> bool:
         """Tell whether ``dt`` is longer than ``max_scan_gap``: no prediction over it.
