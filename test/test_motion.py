@@ -106,7 +106,9 @@ def test_motion_model_velocity_is_the_step_over_its_interval():
 
 
 def test_motion_model_scan_period_from_the_last_positive_intervals():
-    """From five recorded intervals on, one off a whole number of periods is the median.
+    """From five recorded intervals on, one off a whole number of periods is rounded to one.
+
+    To the nearest whole number of median periods, at least one.
 
     Non-positive intervals are not recorded; the period covers the last PERIOD_WINDOW.
     """
@@ -123,6 +125,8 @@ def test_motion_model_scan_period_from_the_last_positive_intervals():
     assert model.effective_dt(0.08) == 0.08  # within a quarter period of one
     assert model.effective_dt(0.14) == 0.1  # 1.4 periods: off-period
     assert model.effective_dt(0.3) == 0.3  # two scans dropped
+    assert model.effective_dt(0.17) == pytest.approx(0.2)  # one dropped, stamped early
+    assert model.effective_dt(0.27) == pytest.approx(0.3)  # two dropped, stamped late
     model.forget_intervals()
     assert model.effective_dt(0.01) == 0.01
     window = motion_model()

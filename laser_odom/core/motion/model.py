@@ -113,14 +113,15 @@ class MotionModel:
         (the true scan rate) is used. fr079 is such a log: a quarter of its intervals
         are 0.55 or 1.45 periods, yet its reference moves as far over them as over a
         whole period (median ratio 1.01 and 1.05; 2.1 over intervals of two periods).
-        A lone off-period interval in a regular stream is taken as one median period.
+        A lone off-period interval in a regular stream is taken as the whole number of
+        median periods nearest to it, at least one (a late stamp after a dropped scan).
         """
         if len(self.intervals) < 5:
             return dt
         median, mean, bursty = self._period_statistics()
         if bursty:
             return mean
-        return median if off_period(dt, median) else dt
+        return median * max(1, round(dt / median)) if off_period(dt, median) else dt
 
     def gap_exceeded(self, dt: float, prior_step: se2.Pose | None = None) -> bool:
         """Tell whether ``dt`` is longer than ``max_scan_gap``: no prediction over it.
