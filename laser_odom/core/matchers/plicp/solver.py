@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from laser_odom.core import se2
+from laser_odom.core.matchers.plicp.quartic import quartic_candidates
 from laser_odom.core.matchers.plicp.segments import pair_and_trim
 from laser_odom.core.se2 import compose_poses, is_small_step, relative_pose
 
@@ -60,7 +61,8 @@ def solve_normal_equations(big_m: np.ndarray, small_m: np.ndarray) -> np.ndarray
     Schur complement ``S = D - B^T A^-1 B`` and ``h = m_r - B^T A^-1 m_t``; ``|r| = 1``
     becomes ``|adj(S + lambda I) h|^2 = det(S + lambda I)^2``, a quartic in lambda.
     Its largest real root makes ``S + lambda I`` positive semidefinite, which is the
-    global minimum on the circle; the other real roots are also scored, for safety.
+    global minimum on the circle; the other real roots and the quartic's turning
+    points are also scored, for safety (:func:`.plicp.quartic.quartic_candidates`).
     Returns the pose ``[t_x, t_y, theta]``.
     """
     a11, a12, b11, b12 = big_m[0, 0], big_m[0, 1], big_m[0, 2], big_m[0, 3]
@@ -85,25 +87,11 @@ def solve_normal_equations(big_m: np.ndarray, small_m: np.ndarray) -> np.ndarray
     det = s11 * s22 - s12 * s12
     # adj(S) h, with adj(S + lambda I) = adj(S) + lambda I for a 2x2 matrix.
     g1, g2 = s22 * h1 - s12 * h2, s11 * h2 - s12 * h1
-    # Monic quartic lambda^4 + c1 lambda^3 + c2 lambda^2 + c3 lambda + c4: its roots are
-    # the eigenvalues of the companion matrix (as numpy.roots finds them).
-    companion = np.zeros((4, 4), dtype=np.complex128)
-    companion[0, 0] = -2.0 * trace
-    companion[0, 1] = -(trace * trace + 2.0 * det - (h1 * h1 + h2 * h2))
-    companion[0, 2] = -(2.0 * trace * det - 2.0 * (h1 * g1 + h2 * g2))
-    companion[0, 3] = -(det * det - (g1 * g1 + g2 * g2))
-    companion[1, 0] = companion[2, 1] = companion[3, 2] = 1.0
-    roots = np.linalg.eigvals(companion)
-    real = np.empty(4)
-    count = 0
-    for root in roots:
-        if abs(root.imag) <= 1e-6 * max(1.0, abs(root.real)):
-            real[count] = root.real
-            count += 1
-    if count == 0:
-        real[0] = roots[np.argmin(np.abs(roots.imag))].real
-        count = 1
-    real = np.sort(real[:count])
+    # Monic quartic lambda^4 + c1 lambda^3 + c2 lambda^2 + c3 lambda + c4.
+    real = np.sort(quartic_candidates(
+        2.0 * trace, trace * trace + 2.0 * det - (h1 * h1 + h2 * h2),
+        2.0 * trace * det - 2.0 * (h1 * g1 + h2 * g2), det * det - (g1 * g1 + g2 * g2)))
+    count = real.shape[0]
     best_c, best_s, best_cost = 1.0, 0.0, np.inf
     for order in range(count - 1, -1, -1):
         lam = real[order]
