@@ -73,8 +73,8 @@ class MatcherConfig:
         'fitted to the real logs in map mode (0 for a simulated scanner).', 0.0, 1.0)
     map_surface_refine: bool = param(
         False, "reference: local_map - refine a clean match against the map's view once "
-        "more on the map's own cell surfaces (no view in between; on for imls, whose ATE "
-        'it lowers on every real log).')
+        "more on the map's own cell surfaces (no view in between; on for plicp and imls, "
+        'whose ATE it lowers on every real log).')
     map_surprise_check: bool = param(
         True, 'reference: local_map - check a clean map match that corrected a good '
         'prediction by far more than the recent misses against the previous scan, and take '

@@ -178,10 +178,9 @@ class MapRegistrar:
         ``matched`` is refined once more against the cells themselves
         (:mod:`.local_map.surface_fit`); its covariance and verdict stand. Degenerate,
         rejected and previous-scan matches are left as they are: their weak direction
-        or their reference is not the map's to correct. Measured with ``imls`` on
-        fr079, MIT CSAIL and Intel (median of 5 copies with 1 mm range noise): ATE
-        0.31 / 0.64 / 0.22 m -> 0.16 / 0.30 / 0.15 m; with ``plicp`` and ``nicp`` it
-        added silent failures on fr079 and drift on Intel (off for them).
+        or their reference is not the map's to correct. It lowers the ATE of ``imls``
+        and ``plicp`` on fr079, MIT CSAIL and Intel (docs/benchmark.md); ``nicp`` keeps
+        it off (Intel: drift 0.56 -> 0.83 %, fr079 every 10th scan: a failed step more).
         """
         verdict = judged.verdict
         if not (matcher.config.map_surface_refine and judged.from_map

@@ -45,8 +45,10 @@ PLICP_MAP_HEADING_WALK = 4e-6
 """plicp's heading walk against the map [rad^2/m]. Whole-log NEES on fr079 / MIT CSAIL /
 Intel (median of 5 copies with 1 mm range noise): with the common 1e-5 0.73 / 2.52 /
 3.24 (fr079 too pessimistic); with the surprise check (``map_surprised``), 4e-6 0.93 /
-2.54 / 7.03 and 3e-6 1.04 / 2.73 / 8.66: no one value puts both fr079 and Intel within
-1-8, and a filter is better served by the pessimistic side."""
+2.54 / 7.03 and 3e-6 1.04 / 2.73 / 8.66; refined on the map's surfaces
+(``map_surface_refine``), 4e-6 0.6 / 1.6 / 4.6 (10 copies on fr079 and Intel) and 1.5e-6
+0.8 / 2.4 / 8.1: no one value puts both fr079 and Intel within 1-8, and a filter is better
+served by the pessimistic side."""
 
 PLICP_SHARED_SCAN, PLICP_BIAS, PLICP_BASELINE_FALLOFF = 0.8, 0.05, 0.5
 """plicp's step-error shares (:mod:`laser_odom.core.uncertainty.pose_uncertainty`), fitted
@@ -83,6 +85,7 @@ class PlicpConfig(MatcherConfig):
     covariance_baseline_falloff: float = retune(MatcherConfig, 'covariance_baseline_falloff',
                                                 PLICP_BASELINE_FALLOFF)
     map_covariance_scale: float = retune(MatcherConfig, 'map_covariance_scale', 1.5)
+    map_surface_refine: bool = retune(MatcherConfig, 'map_surface_refine', True)
     map_covariance_heading_walk: float = retune(MatcherConfig, 'map_covariance_heading_walk',
                                                 PLICP_MAP_HEADING_WALK)
     max_beam_gap: int = param(
