@@ -186,7 +186,8 @@ class MapRegistrar:
         if not (matcher.config.map_surface_refine and judged.from_map
                 and verdict.status == 'matched'):
             return judged
-        step = self.map.refine_step(current.points, view_pose, verdict.pose)
+        step = self.map.refine_step(current.points, view_pose, verdict.pose,
+                                    matcher.config.map_surface_weak_share)
         if step is None:
             return judged
         return judged._replace(verdict=replace(verdict, pose=step))

@@ -166,14 +166,15 @@ class LocalMap:
                           beam_index=rows[:, 3].astype(np.int64), ranges=rows[:, 2].copy(),
                           stamp_ns=stamp_ns, virtual=True)
 
-    def fit_to_surfaces(self, points: np.ndarray, pose: se2.Pose) -> tuple[np.ndarray, int]:
+    def fit_to_surfaces(self, points: np.ndarray, pose: se2.Pose, weak_share: float = 0.0
+                        ) -> tuple[np.ndarray, int]:
         """Refine ``pose`` of base-frame ``points`` on the cells' surfaces; pose and pairs.
 
         :func:`.local_map.surface_fit.fit_to_surfaces`.
         """
         return fit_to_surfaces(points, np.asarray(pose, dtype=float), self._floats,
                                self._ints, self._slot_keys, self._slot_cells,
-                               1.0 / self.geometry.resolution)
+                               1.0 / self.geometry.resolution, weak_share)
 
     def _refresh(self, changed: np.ndarray) -> None:
         """Pool the block moments around the changed cells again."""

@@ -140,8 +140,8 @@ class MapReference:
         self._view = (pose.copy(), view)
         return view
 
-    def refine_step(self, points: np.ndarray, view_pose: se2.Pose, step: se2.Pose
-                    ) -> np.ndarray | None:
+    def refine_step(self, points: np.ndarray, view_pose: se2.Pose, step: se2.Pose,
+                    weak_share: float = 0.0) -> np.ndarray | None:
         """Refine a matched ``step`` from ``view_pose`` on the map's own surfaces.
 
         :mod:`.local_map.surface_fit`; returns the refined step, None when too few of
@@ -153,7 +153,8 @@ class MapReference:
         """
         self._flush()
         view_pose = np.asarray(view_pose, dtype=float)
-        pose, pairs = self.map.fit_to_surfaces(points, se2.compose(view_pose, step))
+        pose, pairs = self.map.fit_to_surfaces(points, se2.compose(view_pose, step),
+                                               weak_share)
         refined = np.asarray(se2.relative(view_pose, pose), dtype=float)
         moved = se2.relative(step, refined)
         if (pairs < MIN_PAIRS or math.hypot(moved[0], moved[1]) > self.config.map_resolution
