@@ -28,9 +28,9 @@ the pose along such a direction by whatever those few pairs say, and on Intel th
 shortened ``nicp``'s path by 0.6 % (50 m drift 0.44 -> 1.06 %, copy 2). So the
 correction can be kept only where the cells measure it (solution remapping: Zhang,
 Kaess and Singh, "On degeneracy of optimization-based state estimation problems", ICRA
-2016, Sec. IV): in the eigen-directions of the final Gauss-Newton Hessian (rotation
-scaled to an arc at the points' RMS range) whose eigenvalue is below a share of the
-pairs (the matcher's ``map_surface_weak_share``), the matcher's pose stands.
+2016, Sec. IV): in the eigen-directions of the Gauss-Newton Hessian at the refined pose
+(rotation scaled to an arc at the points' RMS range) whose eigenvalue is below a share
+of the pairs (the matcher's ``map_surface_weak_share``), the matcher's pose stands.
 """
 
 from __future__ import annotations
@@ -75,13 +75,18 @@ def fit_to_surfaces(points: np.ndarray, pose: np.ndarray, floats: np.ndarray,
     """
     points = np.ascontiguousarray(points, dtype=float)
     start = np.asarray(pose, dtype=float)
-    refined, pairs, hessian = _fit(points, start, floats, ints, slot_keys, slot_cells,
-                                   float(inverse_resolution), ITERATIONS, HUBER_SIGMA,
-                                   MAX_CURVATURE, MIN_PAIRS, CONVERGED[0], CONVERGED[1])
+    refined, pairs = _fit(points, start, floats, ints, slot_keys, slot_cells,
+                          float(inverse_resolution), ITERATIONS, HUBER_SIGMA, MAX_CURVATURE,
+                          MIN_PAIRS, CONVERGED[0], CONVERGED[1])
     if pairs < MIN_PAIRS or weak_share <= 0.0:
         return refined, pairs
+    hessian, _, paired = normal_equations(points, refined, floats, ints, slot_keys,
+                                          slot_cells, float(inverse_resolution),
+                                          HUBER_SIGMA, MAX_CURVATURE)
+    if paired < MIN_PAIRS:
+        return refined, pairs
     length = max(float(np.sqrt(np.mean(np.sum(points ** 2, axis=1)))), 0.1)
-    return measured_correction(start, refined, hessian, weak_share * pairs, length), pairs
+    return measured_correction(start, refined, hessian, weak_share * paired, length), pairs
 
 
 def measured_correction(start: np.ndarray, refined: np.ndarray, hessian: np.ndarray,
@@ -106,45 +111,16 @@ def measured_correction(start: np.ndarray, refined: np.ndarray, hessian: np.ndar
 def _fit(points: np.ndarray, pose: np.ndarray, floats: np.ndarray, ints: np.ndarray,
          slot_keys: np.ndarray, slot_cells: np.ndarray, inverse_resolution: float,
          iterations: int, sigma: float, max_curvature: float, min_pairs: int,
-         converged_linear: float, converged_angular: float
-         ) -> tuple[np.ndarray, int, np.ndarray]:
-    """Gauss-Newton on the Huber-weighted point-to-line residuals (the module's equation).
-
-    Returns the pose, the pairs and the Hessian of the last iteration.
-    """
+         converged_linear: float, converged_angular: float) -> tuple[np.ndarray, int]:
+    """Gauss-Newton on the Huber-weighted point-to-line residuals (the module's equation)."""
     x, y, theta = pose[0], pose[1], pose[2]
     pairs = 0
-    block = np.empty(9, dtype=np.int64)
-    hessian = np.zeros((3, 3))
     for _ in range(iterations):
-        cos_t, sin_t = math.cos(theta), math.sin(theta)
-        hessian = np.zeros((3, 3))
-        gradient = np.zeros(3)
-        pairs = 0
-        for k in range(points.shape[0]):
-            # The point in the map frame, and its lever arm about the base (R p).
-            ax = cos_t * points[k, 0] - sin_t * points[k, 1]
-            ay = sin_t * points[k, 0] + cos_t * points[k, 1]
-            wx, wy = ax + x, ay + y
-            cell = _nearest_cell(wx, wy, floats, ints, slot_keys, slot_cells,
-                                 inverse_resolution, block)
-            if cell < 0:
-                continue
-            nx, ny = line_normal(floats[cell, BLOCK_XX], floats[cell, BLOCK_XY],
-                                 floats[cell, BLOCK_YY], max_curvature)
-            if nx == 0.0 and ny == 0.0:
-                continue
-            residual = nx * (wx - floats[cell, BLOCK_X]) + ny * (wy - floats[cell, BLOCK_Y])
-            magnitude = abs(residual)
-            weight = 1.0 if magnitude <= sigma else sigma / magnitude
-            jacobian = (nx, ny, nx * -ay + ny * ax)
-            for a in range(3):
-                gradient[a] += weight * jacobian[a] * residual
-                for b in range(3):
-                    hessian[a, b] += weight * jacobian[a] * jacobian[b]
-            pairs += 1
+        hessian, gradient, pairs = normal_equations(
+            points, np.array([x, y, theta]), floats, ints, slot_keys, slot_cells,
+            inverse_resolution, sigma, max_curvature)
         if pairs < min_pairs:
-            return pose.copy(), pairs, hessian
+            return pose.copy(), pairs
         for a in range(3):
             hessian[a, a] += 1e-9
         delta = np.linalg.solve(hessian, -gradient)
@@ -152,7 +128,47 @@ def _fit(points: np.ndarray, pose: np.ndarray, floats: np.ndarray, ints: np.ndar
         if (abs(delta[0]) < converged_linear and abs(delta[1]) < converged_linear
                 and abs(delta[2]) < converged_angular):
             break
-    return np.array([x, y, theta]), pairs, hessian
+    return np.array([x, y, theta]), pairs
+
+
+@numba.njit(cache=True, nogil=True)
+def normal_equations(points: np.ndarray, pose: np.ndarray, floats: np.ndarray,
+                     ints: np.ndarray, slot_keys: np.ndarray, slot_cells: np.ndarray,
+                     inverse_resolution: float, sigma: float, max_curvature: float
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Return the Gauss-Newton Hessian and gradient of the residuals at ``pose``, and the pairs.
+
+    Each point is paired with the nearest cell of the 3x3 around it that has a line;
+    its Huber weight is one within ``sigma`` [m] and falls beyond.
+    """
+    cos_t, sin_t = math.cos(pose[2]), math.sin(pose[2])
+    hessian = np.zeros((3, 3))
+    gradient = np.zeros(3)
+    pairs = 0
+    block = np.empty(9, dtype=np.int64)
+    for k in range(points.shape[0]):
+        # The point in the map frame, and its lever arm about the base (R p).
+        ax = cos_t * points[k, 0] - sin_t * points[k, 1]
+        ay = sin_t * points[k, 0] + cos_t * points[k, 1]
+        wx, wy = ax + pose[0], ay + pose[1]
+        cell = _nearest_cell(wx, wy, floats, ints, slot_keys, slot_cells,
+                             inverse_resolution, block)
+        if cell < 0:
+            continue
+        nx, ny = line_normal(floats[cell, BLOCK_XX], floats[cell, BLOCK_XY],
+                             floats[cell, BLOCK_YY], max_curvature)
+        if nx == 0.0 and ny == 0.0:
+            continue
+        residual = nx * (wx - floats[cell, BLOCK_X]) + ny * (wy - floats[cell, BLOCK_Y])
+        magnitude = abs(residual)
+        weight = 1.0 if magnitude <= sigma else sigma / magnitude
+        jacobian = (nx, ny, nx * -ay + ny * ax)
+        for a in range(3):
+            gradient[a] += weight * jacobian[a] * residual
+            for b in range(3):
+                hessian[a, b] += weight * jacobian[a] * jacobian[b]
+        pairs += 1
+    return hessian, gradient, pairs
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
