@@ -157,7 +157,10 @@ def test_what_each_example_fuses_has_an_honest_covariance(path, run, dataset):
     used = replies[1:] if differential else replies
     variances = np.array([list(fused_variances(r, fused).values()) for r in used])
     assert np.all(np.isfinite(variances)) and np.all(variances > 0.0)
-    assert not np.any(np.isclose(variances, 1e-6, rtol=1e-3)), 'placeholder covariance'
+    # A placeholder is the same 1e-6 in every message; an honest variance grows and
+    # may pass through it (plicp against the map here came within 0.1 % of it once).
+    assert not np.any(np.all(np.isclose(variances, 1e-6, rtol=1e-3), axis=0)), (
+        'placeholder covariance')
     assert np.all(variances <= UNKNOWN_TWIST_VARIANCE)
     # Against the truth: what the EKF is told is not overconfident (normalised squared
     # errors: about 1 when honest; a placeholder 1e-6 gives thousands).

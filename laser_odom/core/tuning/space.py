@@ -55,8 +55,11 @@ that mattered most, ATE 0.14 -> 0.01 m), the gates, keyframes and the global sea
 NOT_SEARCHED = ('covariance_scale', 'covariance_shared_scan', 'covariance_bias',
                 'covariance_bias_correlation', 'covariance_baseline_falloff',
                 'covariance_heading_walk', 'map_covariance_heading_walk',
-                'map_covariance_scale', 'map_covariance_shared')
-"""Matcher parameters left out: they calibrate the covariance, not the pose."""
+                'map_covariance_scale', 'map_covariance_shared', 'map_surface_weak_share')
+"""Matcher parameters left out: they calibrate the covariance, not the pose; and
+``map_surface_weak_share``, off by default, whose 0 has no scale to search around (a
+trial drew 0.69, which cuts nearly every correction). A space file (``--space``) adds
+any of them."""
 
 RANGES: dict[str, tuple[float, float]] = {
     'keyframe_distance': (0.0, 0.5),
