@@ -43,6 +43,7 @@ import numpy as np
 from laser_odom.core.registration.local_map.cells import (
     ALIVE, block_cells, BLOCK_WEIGHT, BLOCK_X, BLOCK_XX, BLOCK_XY, BLOCK_Y, BLOCK_YY, cell_key,
     line_normal, MEAN_X, MEAN_Y)
+from laser_odom.core.uncertainty.degeneracy import degenerate_directions, metric_scale
 
 MAX_CURVATURE = 0.1
 """A block whose smaller scatter eigenvalue is more than this share of the sum
@@ -93,16 +94,16 @@ def measured_correction(start: np.ndarray, refined: np.ndarray, hessian: np.ndar
                         weakest: float, length: float) -> np.ndarray:
     """Return ``start`` corrected towards ``refined`` only where ``hessian`` measures it.
 
-    The Gauss-Newton Hessian (x, y, theta) is scaled so that a rotation counts as its
-    arc at ``length`` [m] (a point on a wall square to a direction adds one); the
-    correction's component along each eigenvector whose eigenvalue is below
-    ``weakest`` is removed (Zhang et al. 2016, solution remapping).
+    The Gauss-Newton Hessian (x, y, theta) is judged in metric units, a rotation as its
+    arc at ``length`` [m] (a point on a wall square to a direction adds one:
+    :func:`.uncertainty.degeneracy.degenerate_directions`); the correction's component
+    along each eigenvector whose eigenvalue is below ``weakest`` is removed (Zhang et
+    al. 2016, solution remapping).
     """
-    scale = np.array([1.0, 1.0, 1.0 / length])
-    scaled = hessian * np.outer(scale, scale)
-    values, vectors = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    scale = metric_scale(length)
+    _, vectors, weak = degenerate_directions(hessian, length, weakest)
     correction = (np.asarray(refined, dtype=float) - start) / scale
-    for k in np.flatnonzero(values < weakest):
+    for k in np.flatnonzero(weak):
         correction -= vectors[:, k] * (vectors[:, k] @ correction)
     return start + correction * scale
 
