@@ -73,13 +73,13 @@ class MatcherConfig:
         'fitted to the real logs in map mode (0 for a simulated scanner).', 0.0, 1.0)
     map_surface_refine: bool = param(
         False, "reference: local_map - refine a clean match against the map's view once "
-        "more on the map's own cell surfaces (no view in between; on for plicp and imls, "
-        'whose ATE it lowers on every real log).')
+        "more on the map's own cell surfaces (no view in between; on for plicp, nicp and "
+        'imls, whose ATE it lowers on every real log).')
     map_surface_weak_share: float = param(
         0.0, "reference: local_map - with map_surface_refine, a direction the map's cells "
         'measure with less than this share of the paired points (a point on a wall square '
         "to it adds one) keeps the matcher's pose: along a corridor the map's few features "
-        'may lag where its scans joined (0 = correct every direction).',
+        'may lag where its scans joined (0 = correct every direction; nicp 0.05).',
         0.0, 1.0)
     map_surprise_check: bool = param(
         True, 'reference: local_map - check a clean map match that corrected a good '
