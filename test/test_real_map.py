@@ -78,12 +78,12 @@ SHORT_OF_TARGET: dict[tuple[str, str], dict[str, str]] = {
     ('plicp', 'mit-csail'): {'drift': '0.44 [0.59] %, median [worst] of 5 copies, the '
                                       'documented copy 0.550 % (0.61 [0.67] %, copy 1 0.543 %, '
                                       "before the refinement on the map's surfaces)"},
-    ('nicp', 'fr079'): {'drift': f'0.45 [0.50] %; {MEMORY}', 'ATE': '0.44 [0.59] m'},
-    ('nicp', 'mit-csail'): {'drift': f'0.79 [0.99] %; {MEMORY}'},
-    ('nicp', 'intel'): {'drift': '0.56 [0.89] %, median [worst] of 5 copies, the documented '
-                                 'copy 0.89 %; 0.54 [0.89] % over 10 copies, 0.55 [0.87] % '
-                                 'before fr079-like stamps were told apart (issue 37 stability)',
-                        'ATE': '0.26 [0.47] m, the documented copy 0.47 m'},
+    ('nicp', 'fr079'): {'drift': f'0.36 [0.53] %, the documented copy 0.36 %; {MEMORY}',
+                        'ATE': '0.39 [0.54] m, the documented copy 0.41 m (0.44 [0.59] m before '
+                               "the refinement on the map's surfaces)"},
+    ('nicp', 'mit-csail'): {'drift': '0.53 [0.61] %, median [worst] of 5 copies, the documented '
+                                     'copy 0.59 % (0.79 [0.99] % before the refinement on the '
+                                     f"map's surfaces); {MEMORY}"},
     ('plicp', 'intel'): {'drift': '0.77 [1.43] %, the documented copy 0.93 %: along the '
                                   'corridors of scans 1833-1840 and 3401-3420 the map match '
                                   'slides back where other basins fit alike (issue 37 '
