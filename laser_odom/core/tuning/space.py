@@ -57,9 +57,9 @@ NOT_SEARCHED = ('covariance_scale', 'covariance_shared_scan', 'covariance_bias',
                 'covariance_heading_walk', 'map_covariance_heading_walk',
                 'map_covariance_scale', 'map_covariance_shared', 'map_surface_weak_share')
 """Matcher parameters left out: they calibrate the covariance, not the pose; and
-``map_surface_weak_share``, off by default, whose 0 has no scale to search around (a
-trial drew 0.69, which cuts nearly every correction). A space file (``--space``) adds
-any of them."""
+``map_surface_weak_share``, off (0) by default for every matcher but nicp (0.05), and a 0
+has no scale to search around (a trial drew 0.69, which cuts nearly every correction).
+A space file (``--space``) adds any of them."""
 
 RANGES: dict[str, tuple[float, float]] = {
     'keyframe_distance': (0.0, 0.5),
