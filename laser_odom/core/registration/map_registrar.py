@@ -179,8 +179,8 @@ class MapRegistrar:
         (:mod:`.local_map.surface_fit`); its covariance and verdict stand. Degenerate,
         rejected and previous-scan matches are left as they are: their weak direction
         or their reference is not the map's to correct. It lowers the ATE of ``imls``
-        and ``plicp`` on fr079, MIT CSAIL and Intel (docs/benchmark.md); ``nicp`` keeps
-        it off (Intel: drift 0.56 -> 0.83 %, fr079 every 10th scan: a failed step more).
+        and ``plicp`` on fr079, MIT CSAIL and Intel (docs/benchmark.md); ``nicp`` with
+        ``map_surface_weak_share`` (:data:`.nicp.matcher.NICP_MAP_WEAK_SHARE`).
         """
         verdict = judged.verdict
         if not (matcher.config.map_surface_refine and judged.from_map
