@@ -50,6 +50,32 @@ Intel (median of 5 copies with 1 mm range noise): with the common 1e-5 0.73 / 2.
 0.8 / 2.4 / 8.1: no one value puts both fr079 and Intel within 1-8, and a filter is better
 served by the pessimistic side."""
 
+PLICP_MAP_RESTART_RESIDUAL = 0.02
+"""plicp's ``map_restart_residual`` [m]. Restarts spend about half of its solver's
+iterations against the map (fr079: 943 restarted matches of 4790, about a quarter of the
+time per scan) and change the match rarely (0-11 times per Intel copy), but each change
+steers the rest of the run.
+Measured against the map (10 copies with 1 mm range noise and the copy as received; ATE
+m / 50 m drift %, median [worst] over fr079, Intel, MIT CSAIL), no variant was better on
+every log:
+
+- this value: 0.095 [0.357] / 0.257 [0.391], 0.226 [0.718] / 0.595 [1.433] (3 failed
+  steps, announced), 0.227 [0.383] / 0.430 [0.585]; as received, MIT CSAIL 0.21 / 0.43;
+  the simulated campus and hall, 3 seeds: 4 failed steps (1 silent);
+- 0 (never): 0.098 [0.143] / 0.266 [0.296], 0.155 [0.279] / 0.468 [0.654], 0.251
+  [0.613] / 0.447 [0.717] with a failed step on MIT CSAIL (a corridor slide a restart
+  left); as received, MIT CSAIL 0.46 / 0.56; fr079 every 5th scan at 10 Hz, a failed
+  step more; simulated: 8 failed (4 silent);
+- restarting only an unconverged run: as never on Intel and MIT CSAIL, fr079 alike (as
+  received 0.20 / 0.29 against 0.09 / 0.26);
+- keeping a converged first run when the best restart stops within 0.1 m and 3 deg of
+  it: 0.090 [0.145] / 0.258 [0.309] with a failed step on fr079 (copy 1, scan 4509),
+  0.142 [0.509] / 0.446 [0.929], 0.258 [0.517] / 0.449 [0.536]; as received, MIT CSAIL
+  0.46 / 0.56; simulated: 6 failed (2 silent).
+
+Intel gains from fewer restarts what MIT CSAIL and fr079 lose to a slide or a wrong view
+(2026-12-07)."""
+
 PLICP_SHARED_SCAN, PLICP_BIAS, PLICP_BASELINE_FALLOFF = 0.8, 0.05, 0.5
 """plicp's step-error shares (:mod:`laser_odom.core.uncertainty.pose_uncertainty`), fitted
 since its segment lines take their surface's direction (``segment_window``). Simulated
@@ -116,7 +142,8 @@ class PlicpConfig(MatcherConfig):
         'retried from the rotations where the surface directions of the two scans '
         'agree (0 = never).', 0.0, 10.0)
     map_restart_residual: float = param(
-        0.02, 'restart_residual against a view of the local map (reference: local_map): '
+        PLICP_MAP_RESTART_RESIDUAL,
+        'restart_residual against a view of the local map (reference: local_map): '
         'its lines are averages of many scans ray-cast across map cells, and even correct '
         'matches leave larger residuals on them (0 = never).', 0.0, 10.0)
     map_huber_sigma: float = param(
