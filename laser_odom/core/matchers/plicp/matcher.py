@@ -61,7 +61,7 @@ every log:
 
 - this value: 0.095 [0.357] / 0.257 [0.391], 0.226 [0.718] / 0.595 [1.433] (3 failed
   steps, announced), 0.227 [0.383] / 0.430 [0.585]; as received, MIT CSAIL 0.21 / 0.43;
-  the simulated campus and hall, 3 seeds: 4 failed steps (1 silent);
+  the simulated campus and hall (seeds 1-3, 3 copies each): 4 failed steps (1 silent);
 - 0 (never): 0.098 [0.143] / 0.266 [0.296], 0.155 [0.279] / 0.468 [0.654], 0.251
   [0.613] / 0.447 [0.717] with a failed step on MIT CSAIL (a corridor slide a restart
   left); as received, MIT CSAIL 0.46 / 0.56; fr079 every 5th scan at 10 Hz, a failed
