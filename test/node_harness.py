@@ -224,8 +224,9 @@ class OdometryClient:
         self.odom: dict[int, list[Odometry]] = {}
         self.pose: dict[int, list[PoseStamped]] = {}
         self.order: list[int] = []
-        node.create_subscription(Odometry, f'{self.ns}/odom', self._on_odom, reliable)
-        node.create_subscription(PoseStamped, f'{self.ns}/pose', self._on_pose, reliable)
+        self._outputs = (
+            node.create_subscription(Odometry, f'{self.ns}/odom', self._on_odom, reliable),
+            node.create_subscription(PoseStamped, f'{self.ns}/pose', self._on_pose, reliable))
 
     def _on_odom(self, msg: Odometry) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
@@ -236,16 +237,19 @@ class OdometryClient:
         self.pose.setdefault(stamp_to_ns(msg.header.stamp), []).append(msg)
 
     def wait_ready(self, timeout: float = STARTUP_TIMEOUT) -> bool:
-        """Wait until the node's scan subscription and output publishers are discovered.
+        """Wait until the node's scan subscription and output publishers are matched.
 
         The node subscribes once its kernels are loaded, which may take long on a busy
-        machine: the deadline is generous, the wait ends as soon as it is there.
+        machine: the deadline is generous, the wait ends as soon as it is there. The
+        outputs count once this client's own subscriptions are matched to them, not
+        just seen in the graph: an odometry published before that is lost, and the
+        scan sent again has the same stamp, which the node drops (a busy CI run lost
+        the first scan's odometry that way).
         """
-        node = self.peer.node
         return self.peer.spin_until(
             lambda: (self.scan_pub.get_subscription_count() >= 1
-                     and node.count_publishers(f'{self.ns}/odom') >= 1
-                     and node.count_publishers(f'{self.ns}/pose') >= 1), timeout)
+                     and all(sub.get_publisher_count() >= 1 for sub in self._outputs)),
+            timeout)
 
     def has_output(self, stamp_ns: int) -> bool:
         """Tell whether odometry and pose for a stamp have arrived."""
