@@ -243,8 +243,8 @@ class OdometryClient:
         machine: the deadline is generous, the wait ends as soon as it is there. The
         outputs count once this client's own subscriptions are matched to them, not
         just seen in the graph: an odometry published before that is lost, and the
-        scan sent again has the same stamp, which the node drops (a busy CI run lost
-        the first scan's odometry that way).
+        scan sent again has the same stamp, which the node drops (most likely how a busy
+        CI run lost the first scan's odometry).
         """
         return self.peer.spin_until(
             lambda: (self.scan_pub.get_subscription_count() >= 1
