@@ -1,5 +1,6 @@
 """De-skewing rotating lidars: the math, the timing rules, and the gain through the pipeline."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -255,6 +256,49 @@ def test_a_scan_with_bad_timing_takes_the_sensors_last_valid_timing():
     assert sum('time_increment' in line for line in said) == 1
     assert 'last valid time_increment is used' in said[0]
     assert _run(data, 'nicp', 'auto')[1] <= good[1] * 1.2 + 0.002  # no lasting drift
+
+
+def _scored_at_true_stamps(dataset, stamps_ns: list[int], reference: str
+                           ) -> tuple[int, float]:
+    """Return (failed steps, ATE [m]) of nicp on the scans stamped ``stamps_ns``.
+
+    Each pose is scored at the instant its scan was taken (``dataset``'s own stamp).
+    """
+    config = PipelineConfig(matcher='nicp')
+    config.local_map.reference = reference
+    pipeline = OdometryPipeline(config, events=EventLog(lambda _: None))
+    poses = [pipeline.process(dataclasses.replace(scan, stamp_ns=stamp)).pose
+             for scan, stamp in zip(dataset.scans, stamps_ns)]
+    true_stamps = np.array([scan.stamp_ns for scan in dataset.scans])
+    errors = evaluate(Trajectory(true_stamps, np.array(poses)), dataset.reference)
+    return errors.failed_steps, errors.ate_rms
+
+
+@pytest.mark.parametrize('reference', ['scan', 'local_map'])
+def test_scans_logged_in_bursts_are_de_skewed_over_the_sensors_interval(reference):
+    """From the 9th scan on, every third stamped 1 ms after the one before: a logger in bursts.
+
+    Intel's stamps are such (a third of its intervals are under 50 ms at 5 Hz). The
+    twist a scan is de-skewed with is measured over the sensor's interval
+    (:meth:`.MotionModel.effective_dt`, at least one sweep), and it is extrapolated over
+    the same clock. Before, over the stamps' 1 ms (2 seeds of the office at 1 m/s with
+    this lidar, nicp and plicp, 30 s: 18-60 failed steps, 7-16 silent, 50 m drift
+    73-166 %; Intel given a 13.3 ms sweep, 40-42 failed scan to scan). Bursts from
+    the first scan on are not covered: before five intervals are known, one of 1 ms
+    scales the prediction to nothing (here 4 steps fail at the start, turning at 1.5
+    rad/s).
+    """
+    data = simulate('office', 12.0, sensor_model('lds01'),
+                    motion=ConstantTwist(0.3, 1.5, (1.0, 0.5, 0.0)), seed=1)
+    stamps = [scan.stamp_ns for scan in data.scans]
+    bursty = list(stamps)
+    for k in range(8, len(bursty), 3):
+        bursty[k] = bursty[k - 1] + 1_000_000
+    failed, ate = _scored_at_true_stamps(data, stamps, reference)
+    failed_bursty, ate_bursty = _scored_at_true_stamps(data, bursty, reference)
+    figures = f'failed {failed_bursty} against {failed}, ATE {ate_bursty:.3f} against {ate:.3f} m'
+    assert failed_bursty <= failed <= 1, figures  # map mode: 1 at 1.5 rad/s with true stamps
+    assert ate_bursty <= 1.5 * ate + 0.01, figures
 
 
 def test_the_local_map_keeps_the_mid_sweep_twist_until_the_reference_changes():

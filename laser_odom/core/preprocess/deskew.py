@@ -240,18 +240,20 @@ class SweepTwist:
         """Drop the previous measurement (the pipeline was reset)."""
         self._previous: tuple[int, np.ndarray] | None = None
 
-    def over_sweep(self, measured: np.ndarray, stamp_ns: int, step_dt: float,
+    def over_sweep(self, measured: np.ndarray, clock_ns: int, step_dt: float,
                    sweeps_after_stamp: bool, changed: bool) -> np.ndarray:
-        """Return the twist to de-skew the scan stamped ``stamp_ns`` with, and record ``measured``.
+        """Return the twist to de-skew the scan at ``clock_ns`` with, and record ``measured``.
 
-        ``step_dt`` [s] is the measured step's interval; ``sweeps_after_stamp`` tells
-        whether the scan is stamped at its first beam.
+        ``step_dt`` [s] is the measured step's interval; ``clock_ns`` the scan's time on
+        the same clock (the pipeline's sum of such intervals: the stamp of a regular
+        stream, but bursty logger stamps 1 ms apart would extrapolate 200-fold);
+        ``sweeps_after_stamp`` tells whether the scan is stamped at its first beam.
         """
         measured = np.asarray(measured, dtype=float)
-        previous, self._previous = self._previous, (stamp_ns, measured)
+        previous, self._previous = self._previous, (clock_ns, measured)
         if not changed or previous is None:
             return measured
-        span = (stamp_ns - previous[0]) * 1e-9
+        span = (clock_ns - previous[0]) * 1e-9
         if not span > 0.0:
             return measured
         lead = SWEEP_LEAD if sweeps_after_stamp else 1.0 - SWEEP_LEAD
@@ -323,24 +325,27 @@ class MidSweepTwist:
         """
         return prediction if self._last is None else self._last.copy()
 
-    def blended(self, measured: np.ndarray, pose: np.ndarray, scan: ScanPoints
-                ) -> np.ndarray:
+    def blended(self, measured: np.ndarray, pose: np.ndarray, scan: ScanPoints,
+                clock_ns: int | None = None) -> np.ndarray:
         """Return the twist to de-skew ``scan`` with, and record its mid-sweep pose.
 
         ``pose`` is the scan's matched pose at its stamp (odometry frame), with its
         points de-skewed by ``scan.twist``; ``measured`` is the matched step's twist.
-        Without a previous mid-sweep pose, ``measured``.
+        ``clock_ns`` is the scan's time on the clock the steps are measured on (as
+        :meth:`SweepTwist.over_sweep`; default the stamp). Without a previous mid-sweep
+        pose, ``measured``.
         """
+        clock_ns = scan.stamp_ns if clock_ns is None else clock_ns
         measured = np.asarray(measured, dtype=float)
         if scan.times is None or len(scan.times) == 0:
             self.forget()
             return measured
         used = np.zeros(3) if scan.twist is None else np.asarray(scan.twist, dtype=float)
         middle = se2.compose(pose, step_of_twist(used, float(np.mean(scan.times))))
-        previous, self._previous = self._previous, (scan.stamp_ns, middle)
+        previous, self._previous = self._previous, (clock_ns, middle)
         if previous is None:
             return measured
-        span = (scan.stamp_ns - previous[0]) * 1e-9
+        span = (clock_ns - previous[0]) * 1e-9
         if not span > 0.0:
             return measured
         between = twist_of_step(se2.relative(previous[1], middle), span)
