@@ -281,9 +281,10 @@ def test_scans_logged_in_bursts_are_de_skewed_over_the_sensors_interval(referenc
     Intel's stamps are such (a third of its intervals are under 50 ms at 5 Hz). The
     twist a scan is de-skewed with is measured over the sensor's interval
     (:meth:`.MotionModel.effective_dt`, at least one sweep), and it is extrapolated over
-    the same clock. Before, over the stamps' 1 ms (2 seeds of the office at 1 m/s with
-    this lidar, nicp and plicp, 30 s: 18-60 failed steps, 7-16 silent, 50 m drift
-    73-166 %; Intel given a 13.3 ms sweep, 40-42 failed scan to scan). Bursts from
+    the same clock. Before, over the stamps' 1 ms (30 s of the office's aggressive
+    profile under this lidar: scan to scan plicp and nicp 25 and 18 failed steps, 9 and
+    7 silent; against the map plicp and imls 60 and 45, 16 and 7 silent; 50 m drift
+    73-166 %. Intel given a 13.3 ms sweep: 40-42 failed scan to scan, 0 now). Bursts from
     the first scan on are not covered: before five intervals are known, one of 1 ms
     scales the prediction to nothing (here 4 steps fail at the start, turning at 1.5
     rad/s).
