@@ -147,6 +147,11 @@ def test_live_replay_with_clock_drives_a_sim_time_node(peer, node, clocks, sim_b
     offline = tmp_path / 'offline.tum'
     assert replay.main([str(sim_bag), '--tum', str(offline), '--quiet']) == 0
     capsys.readouterr()
+    # This run's /clock only: a rerun (or a test of this module that ran before on this
+    # worker) leaves earlier clocks heard, and a new replay's clock starts again (CI at
+    # a5591ff failed a rerun on that).
+    peer.spin_for(0.5)
+    clocks.clear()
     live = tmp_path / 'live.tum'
     result = subprocess.run(
         [sys.executable, '-m', 'laser_odom.tools.replay', str(sim_bag), '--live', '--clock',
@@ -163,7 +168,9 @@ def test_live_replay_with_clock_drives_a_sim_time_node(peer, node, clocks, sim_b
     # /clock: every scan's stamp, never going back, from before the first one.
     assert set(got.stamps_ns) <= set(clocks)
     assert np.all(np.diff(clocks) >= 0) and clocks[0] < got.stamps_ns[0]
-    assert node.output().count(NO_CLOCK_WARNING) == 1
+    # Never repeated once the clock runs (said at all only if the node waited for it:
+    # under worksteal this test may be the first of its module on a worker).
+    assert node.output().count(NO_CLOCK_WARNING) <= 1
 
 
 def test_status_answers_once_the_clock_moves(peer, node):
