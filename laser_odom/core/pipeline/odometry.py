@@ -98,6 +98,7 @@ class OdometryPipeline(LiveReconfiguration, ReferenceKeeping):
         self.scans_after_keyframe = 0
         self.last_stamp_ns: int | None = None
         self.sweep_clock_ns = 0
+        self.map_seed: ScanPoints | None = None
         self.untrusted = 'reset'
         self.motion.reset()
         self.sweep_twist = SweepTwist()
@@ -180,6 +181,7 @@ class OdometryPipeline(LiveReconfiguration, ReferenceKeeping):
         self._set_keyframe(current, motion_known=False)
         if self.map_registrar is not None:
             self.map_registrar.restart(current, self.pose)
+            self.map_seed = current if current.times is not None else None
         return OdometryEstimate(stamp_ns, self.pose.copy(), self.pose_covariance.copy(),
                                 np.zeros(3), np.eye(3) * UNKNOWN_TWIST_VARIANCE,
                                 'initialized', scan_points=current.points)
@@ -368,6 +370,10 @@ class OdometryPipeline(LiveReconfiguration, ReferenceKeeping):
                                                          self.sweep_clock_ns)
             changed = max(reference_shift,
                           deskew_change(current, current_twist)) > DESKEW_TOLERANCE
+            straightened = self._straighten_map_seed(reference, measured)
+            if straightened is not None:  # matched against the bent map: no pose to keep
+                self.mid_sweep_twist.forget()
+                reference, changed = straightened, True
         if not changed:
             return current, judged
         if reference_shift > DESKEW_TOLERANCE:
