@@ -298,7 +298,7 @@ def test_scans_logged_in_bursts_are_de_skewed_over_the_sensors_interval(referenc
     failed, ate = _scored_at_true_stamps(data, stamps, reference)
     failed_bursty, ate_bursty = _scored_at_true_stamps(data, bursty, reference)
     figures = f'failed {failed_bursty} against {failed}, ATE {ate_bursty:.3f} against {ate:.3f} m'
-    assert failed_bursty <= failed <= 1, figures  # map mode: 1 at 1.5 rad/s with true stamps
+    assert failed_bursty == failed == 0, figures
     assert ate_bursty <= 1.5 * ate + 0.01, figures
 
 
