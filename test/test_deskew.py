@@ -109,7 +109,7 @@ def test_the_twist_between_mid_sweep_poses_ignores_the_de_skew_error_of_each_pos
     for stamp, pose, error in zip(stamps, poses, errors):
         measured = (true if previous is None
                     else twist_of_step(se2.relative(previous, pose), 0.2))
-        blended = twists.blended(measured, pose, _swept(stamp, true + error, times))
+        blended = twists.blended(measured, pose, _swept(stamp, true + error, times), stamp)
         if previous is None:
             np.testing.assert_array_equal(blended, measured)
         else:
@@ -121,8 +121,8 @@ def test_the_twist_between_mid_sweep_poses_ignores_the_de_skew_error_of_each_pos
         previous = pose
     twists.forget()
     assert np.array_equal(twists.predicted(prediction), prediction)
-    assert np.array_equal(twists.blended(true, poses[0], _swept(600_000_000, true, times)),
-                          true)
+    assert np.array_equal(
+        twists.blended(true, poses[0], _swept(600_000_000, true, times), 600_000_000), true)
 
 
 def test_step_of_twist_inverts_twist_of_step():

@@ -326,16 +326,14 @@ class MidSweepTwist:
         return prediction if self._last is None else self._last.copy()
 
     def blended(self, measured: np.ndarray, pose: np.ndarray, scan: ScanPoints,
-                clock_ns: int | None = None) -> np.ndarray:
+                clock_ns: int) -> np.ndarray:
         """Return the twist to de-skew ``scan`` with, and record its mid-sweep pose.
 
         ``pose`` is the scan's matched pose at its stamp (odometry frame), with its
         points de-skewed by ``scan.twist``; ``measured`` is the matched step's twist.
         ``clock_ns`` is the scan's time on the clock the steps are measured on (as
-        :meth:`SweepTwist.over_sweep`; default the stamp). Without a previous mid-sweep
-        pose, ``measured``.
+        :meth:`SweepTwist.over_sweep`). Without a previous mid-sweep pose, ``measured``.
         """
-        clock_ns = scan.stamp_ns if clock_ns is None else clock_ns
         measured = np.asarray(measured, dtype=float)
         if scan.times is None or len(scan.times) == 0:
             self.forget()
