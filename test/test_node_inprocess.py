@@ -188,3 +188,55 @@ def test_a_scan_waits_for_its_prior_while_the_prior_is_still_arriving(context):
         assert error[0] < 0.03 and error[1] < 0.01, error
     finally:
         node.destroy_node()
+
+
+def test_ctrl_c_inside_a_kernel_stops_the_node_and_a_bad_scan_does_not(context, monkeypatch):
+    """Ctrl-C while a numba kernel runs comes back as a SystemError caused by it.
+
+    The node logged it as a failed scan ("[ERROR] failed to process a scan:
+    SystemError('CPUDispatcher(<function gauss_newton ...>) returned a result with an
+    exception set')") and spun on: test_node's Ctrl-C test failed so once, under load.
+    It now stops as Ctrl-C does anywhere else; any other error of one scan is still
+    logged, and the next scan matched.
+    """
+    from laser_odom.ros.run import interrupted
+
+    def kernel_interrupted():
+        try:
+            raise KeyboardInterrupt()
+        except KeyboardInterrupt as interrupt:
+            raise SystemError('returned a result with an exception set') from interrupt
+
+    data = simulate(TEST_WORLD, 1.0, LaserModel(), seed=8)
+    node = LaserOdomNode(context=context, parameter_overrides=[
+        Parameter('matcher', value='plicp')])
+    published, errors = [], []
+    node._odom_pub.publish = published.append
+    monkeypatch.setattr(node, 'get_logger', lambda: types.SimpleNamespace(
+        error=errors.append, info=lambda message: None, warning=lambda message: None))
+
+    def arrive(index: int) -> None:
+        node._on_scan(scan_to_msg(data.scans[index]), {
+            'received_timestamp': time.time_ns(), 'publication_sequence_number': index + 1})
+
+    try:
+        arrive(0)
+        process = node.pipeline.process
+        monkeypatch.setattr(node.pipeline, 'process',
+                            lambda *args: (_ for _ in ()).throw(ValueError('bad scan')))
+        arrive(1)
+        assert len(errors) == 1 and 'bad scan' in errors[0]
+        monkeypatch.setattr(node.pipeline, 'process', lambda *args: kernel_interrupted())
+        with pytest.raises(KeyboardInterrupt):
+            arrive(2)
+        assert len(errors) == 1, errors
+        monkeypatch.setattr(node.pipeline, 'process', process)
+        arrive(3)
+        assert len(published) == 2
+    finally:
+        node.destroy_node()
+    assert not interrupted(ValueError('bad scan'))
+    try:
+        kernel_interrupted()
+    except SystemError as error:
+        assert interrupted(error)

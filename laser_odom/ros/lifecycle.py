@@ -34,7 +34,7 @@ from sensor_msgs.msg import LaserScan as LaserScanMsg
 from laser_odom.io.params_file import ParamsFile
 from laser_odom.ros import node as plain
 from laser_odom.ros.diagnostics import ScanGapCounter
-from laser_odom.ros.run import run_node
+from laser_odom.ros.run import interrupted, run_node
 from laser_odom.ros.usage import usage
 
 PROG = 'laser_odom_lifecycle_node'
@@ -116,6 +116,8 @@ class LaserOdomLifecycleNode(LifecycleNodeMixin, plain.LaserOdomNode):
             self._build()
         except Exception as error:  # noqa: B902 - said in one line; the node stays unconfigured
             self._destroy_built()
+            if interrupted(error):  # Ctrl-C while a kernel compiled or ran
+                raise KeyboardInterrupt() from error
             self.get_logger().error(f'configure failed: {error}')
             return FAILURE
         self._configured = True

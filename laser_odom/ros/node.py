@@ -56,7 +56,7 @@ from laser_odom.ros.extrinsic import TfInterface
 from laser_odom.ros.live import LiveParameters
 from laser_odom.ros.map_cloud import MapCloud
 from laser_odom.ros.priors import PriorInputs
-from laser_odom.ros.run import run_node
+from laser_odom.ros.run import interrupted, run_node
 from laser_odom.ros.sim_time import ClockWatch
 from laser_odom.ros.usage import usage
 
@@ -259,6 +259,8 @@ class LaserOdomNode(Node):
             with self._lock:  # the next keyframe's own work, once the result is out
                 self.pipeline.prepare_next()
         except Exception as error:  # keep running: one bad scan must not stop odometry
+            if interrupted(error):
+                raise KeyboardInterrupt() from error
             if self.context.ok():
                 self.get_logger().error(f'failed to process a scan: {error!r}')
         finally:

@@ -24,6 +24,23 @@ if TYPE_CHECKING:
     from rclpy.node import Node
 
 
+def interrupted(error: BaseException | None) -> bool:
+    """Tell whether an error stands for Ctrl-C.
+
+    A ``KeyboardInterrupt`` raised while a numba kernel ran comes back as a
+    ``SystemError`` whose cause is the interrupt ("returned a result with an exception
+    set"). Where a node catches and logs a scan's errors to keep running, such an error
+    is a request to stop, not a bad scan.
+    """
+    seen: set[int] = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
 def run_node(args: list[str] | None, node_type: Callable[[Sequence[ParamsFile]], 'Node'],
              prog: str, help_text: Callable[[], str]) -> int:
     """Run ``node_type(params_files)`` until Ctrl-C; return the exit code (2: bad input).
