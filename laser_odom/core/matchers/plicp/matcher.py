@@ -76,6 +76,28 @@ every log:
 Intel gains from fewer restarts what MIT CSAIL and fr079 lose to a slide or a wrong view
 (2026-12-07)."""
 
+PLICP_MAX_SEGMENT_LENGTH = 0.5
+"""plicp's ``max_segment_length`` [m]. Shorter segments make plicp hold in the simulated
+hall of sparse pillars (issue 38's gap) but cost the real logs scan to scan. Measured
+2026-12-07, the hall (3 seeds, slow and fast, 3 copies with 1 mm range noise; failed
+steps summed (silent), 50 m drift median [worst] %) and the real logs (5 copies; 50 m
+drift median [worst] %, failed (silent)):
+
+- 0.5 (this value): hall scan to scan 59 (0), 6.6 [23.7]; against the map 4 (1), 0.26
+  [2.2]; fr079 scan 1.04 [1.05], map 0.26 [0.39]; Intel scan 4.02 [4.04], map 0.77
+  [1.43], 2 (0); MIT CSAIL scan 1.21 [1.22], map 0.44 [0.59];
+- 0.35: hall 26 (0), 3.9 [11.8]; map 10 (1); fr079 scan 1.12, map 0.28 [1.53] with a
+  silent failed step (ATE 2.39 m); Intel scan 4.26, map 0.43 [1.07], 1 (1); MIT CSAIL
+  scan 1.16, map 0.47;
+- 0.3: hall 14 (0), 3.0 [8.7]; map 3 (0), 0.18 [2.7];
+- 0.25: hall 12 (1), 2.4 [7.4]; map 0 (0), 0.11 [1.2]; fr079 scan 1.15, map 0.33
+  [0.44]; Intel scan 4.98 with 3 (2) failed, map 0.46 [1.23]; MIT CSAIL scan 1.27, map
+  0.43 [0.70] with a silent failed step.
+
+It is not the segments across small range jumps near the sensor: a segment no longer
+than 4 or 6 times the beams' spacing at its nearer range left the hall as it was (54
+failed scan to scan). Nor dropped beams: ``max_beam_gap`` 1 or 2 changed nothing."""
+
 PLICP_SHARED_SCAN, PLICP_BIAS, PLICP_BASELINE_FALLOFF = 0.8, 0.05, 0.5
 """plicp's step-error shares (:mod:`laser_odom.core.uncertainty.pose_uncertainty`), fitted
 since its segment lines take their surface's direction (``segment_window``). Simulated
@@ -118,7 +140,7 @@ class PlicpConfig(MatcherConfig):
         3, 'Reference points whose beam indices differ by more than this do not form '
         'a segment.', 1, 1000)
     max_segment_length: float = param(
-        0.5, 'Reference neighbours farther apart than this [m] are a range '
+        PLICP_MAX_SEGMENT_LENGTH, 'Reference neighbours farther apart than this [m] are a range '
         'discontinuity, not a segment.', 0.01, 10.0)
     min_keep_fraction: float = param(
         0.9, 'Trimming: always keep at least this fraction of the paired points.',
