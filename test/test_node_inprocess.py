@@ -201,7 +201,10 @@ def test_ctrl_c_inside_a_kernel_stops_the_node_and_a_bad_scan_does_not(context, 
     """
     from laser_odom.ros.run import interrupted
 
-    def kernel_interrupted():
+    def bad_scan(*args):
+        raise ValueError('bad scan')
+
+    def kernel_interrupted(*args):
         try:
             raise KeyboardInterrupt()
         except KeyboardInterrupt as interrupt:
@@ -222,11 +225,10 @@ def test_ctrl_c_inside_a_kernel_stops_the_node_and_a_bad_scan_does_not(context, 
     try:
         arrive(0)
         process = node.pipeline.process
-        monkeypatch.setattr(node.pipeline, 'process',
-                            lambda *args: (_ for _ in ()).throw(ValueError('bad scan')))
+        monkeypatch.setattr(node.pipeline, 'process', bad_scan)
         arrive(1)
         assert len(errors) == 1 and 'bad scan' in errors[0]
-        monkeypatch.setattr(node.pipeline, 'process', lambda *args: kernel_interrupted())
+        monkeypatch.setattr(node.pipeline, 'process', kernel_interrupted)
         with pytest.raises(KeyboardInterrupt):
             arrive(2)
         assert len(errors) == 1, errors
@@ -235,8 +237,9 @@ def test_ctrl_c_inside_a_kernel_stops_the_node_and_a_bad_scan_does_not(context, 
         assert len(published) == 2
     finally:
         node.destroy_node()
-    assert not interrupted(ValueError('bad scan'))
-    try:
+    with pytest.raises(ValueError) as bad:
+        bad_scan()
+    assert not interrupted(bad.value)
+    with pytest.raises(SystemError) as in_kernel:
         kernel_interrupted()
-    except SystemError as error:
-        assert interrupted(error)
+    assert interrupted(in_kernel.value)
