@@ -21,10 +21,11 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 import numpy as np
+from rcl_interfaces.msg import Log
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
@@ -227,6 +228,12 @@ class OdometryClient:
         self._outputs = (
             node.create_subscription(Odometry, f'{self.ns}/odom', self._on_odom, reliable),
             node.create_subscription(PoseStamped, f'{self.ns}/pose', self._on_pose, reliable))
+        # Created after the outputs, on purpose: see wait_ready.
+        self._logger_prefix = self.ns.strip('/').replace('/', '.') + '.' if self.ns else ''
+        self._node_heard = False
+        rosout = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node.create_subscription(Log, '/rosout', self._on_rosout, rosout)
 
     def _on_odom(self, msg: Odometry) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
@@ -236,20 +243,35 @@ class OdometryClient:
     def _on_pose(self, msg: PoseStamped) -> None:
         self.pose.setdefault(stamp_to_ns(msg.header.stamp), []).append(msg)
 
-    def wait_ready(self, timeout: float = STARTUP_TIMEOUT) -> bool:
+    def _on_rosout(self, msg: Log) -> None:
+        name = msg.name
+        if name.startswith(self._logger_prefix) and '.' not in name[len(self._logger_prefix):]:
+            self._node_heard = True
+
+    def wait_ready(self, timeout: float = STARTUP_TIMEOUT, heard: float = 10.0) -> bool:
         """Wait until the node's scan subscription and output publishers are matched.
 
         The node subscribes once its kernels are loaded, which may take long on a busy
         machine: the deadline is generous, the wait ends as soon as it is there. The
         outputs count once this client's own subscriptions are matched to them, not
         just seen in the graph: an odometry published before that is lost, and the
-        scan sent again has the same stamp, which the node drops (most likely how a busy
-        CI run lost the first scan's odometry).
+        scan sent again has the same stamp, which the node drops.
+
+        That is this side's match only. The node's writers match our readers when the
+        node has read our readers' discovery announcements, which may come later on a
+        busy machine (a CI run lost the first scan's odometry so, with every match
+        here in place). Those announcements arrive in order, so the node's log on
+        ``/rosout`` (kept for late readers), reaching our reader made after the
+        outputs' readers, shows that it knows them: that is waited for too, at most
+        ``heard`` seconds (the kept log lines expire after 10 s).
         """
-        return self.peer.spin_until(
+        matched = self.peer.spin_until(
             lambda: (self.scan_pub.get_subscription_count() >= 1
                      and all(sub.get_publisher_count() >= 1 for sub in self._outputs)),
             timeout)
+        if matched:
+            self.peer.spin_until(lambda: self._node_heard, heard)
+        return matched
 
     def has_output(self, stamp_ns: int) -> bool:
         """Tell whether odometry and pose for a stamp have arrived."""

@@ -7,11 +7,14 @@ node object scan by scan.
 """
 
 import math
+import os
+import subprocess
+import sys
 import time
 import types
 
 from geometry_msgs.msg import TransformStamped
-from node_harness import odometry_msg, pose_error, TEST_WORLD
+from node_harness import odometry_msg, pose_error, ROOT, TEST_WORLD, unique_domain_id
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -243,3 +246,53 @@ def test_ctrl_c_inside_a_kernel_stops_the_node_and_a_bad_scan_does_not(context, 
     with pytest.raises(SystemError) as in_kernel:
         kernel_interrupted()
     assert interrupted(in_kernel.value)
+
+
+SLOW_SIGNAL_THREAD = """
+import threading
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from laser_odom.ros import run
+
+seen = []
+
+
+class Probe(Node):
+    def __init__(self, params_files):
+        super().__init__('teardown_probe')
+
+    def destroy_node(self):
+        seen.append(rclpy.ok())
+        super().destroy_node()
+
+
+def interrupted_spin(executor):
+    # What rclpy's deferred signal thread does, late: shut the context down.
+    context = rclpy.get_default_context().handle
+    threading.Timer(0.3, context.shutdown).start()
+    raise KeyboardInterrupt()
+
+
+SingleThreadedExecutor.spin = interrupted_spin
+code = run.run_node(['probe'], Probe, 'probe', lambda: '')
+print('exit', code, 'context ok at destroy_node:', seen)
+"""
+
+
+def test_ctrl_c_teardown_waits_for_the_signal_thread(tmp_path):
+    """The node is destroyed only once rclpy's signal thread has shut the context down.
+
+    That thread triggers the executors' SIGINT guard conditions with no lock against
+    the main thread; tearing down beside it segfaulted about one Ctrl-C in a hundred
+    (exit -11, test_lifecycle in CI). Here it runs 0.3 s late, in a process of its own.
+    """
+    script = tmp_path / 'slow_signal_thread.py'
+    script.write_text(SLOW_SIGNAL_THREAD)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(unique_domain_id()),
+               PYTHONPATH=os.pathsep.join(p for p in (str(ROOT), os.environ.get(
+                   'PYTHONPATH', '')) if p))
+    done = subprocess.run([sys.executable, str(script)], env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert 'exit 0 context ok at destroy_node: [False]' in done.stdout, done.stdout

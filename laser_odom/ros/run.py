@@ -10,6 +10,7 @@ quietly (exit code 0).
 from __future__ import annotations
 
 import sys
+import time
 from typing import Callable, Sequence, TYPE_CHECKING
 
 import rclpy
@@ -21,7 +22,11 @@ from laser_odom.ros.live import StartupError
 from laser_odom.ros.usage import params_file_arguments, wants_help
 
 if TYPE_CHECKING:
+    from rclpy.context import Context
     from rclpy.node import Node
+
+SIGNAL_THREAD_WAIT = 2.0
+"""Seconds teardown waits for rclpy's signal thread to shut the context down."""
 
 
 def interrupted(error: BaseException | None) -> bool:
@@ -39,6 +44,26 @@ def interrupted(error: BaseException | None) -> bool:
         seen.add(id(error))
         error = error.__cause__ or error.__context__
     return False
+
+
+def let_the_signal_thread_finish(context: 'Context',
+                                 timeout: float = SIGNAL_THREAD_WAIT) -> None:
+    """Wait until the context is shut down, as rclpy's signal thread does after Ctrl-C.
+
+    rclpy answers SIGINT in two threads: the Python handler raises
+    ``KeyboardInterrupt`` here, and a deferred C++ thread triggers the executors'
+    SIGINT guard conditions, then shuts every context down
+    (``rclpy/src/rclpy/signal_handler.cpp``), with no lock against this thread. When
+    that thread runs late on a busy machine, destroying the node and the executor
+    (whose guard condition it is walking) is a use after free: about one Ctrl-C in a
+    hundred ended in a segfault (exit code -11), more often when the executor was
+    shut down first. The context stops being ok only after that thread has
+    triggered the guard conditions, so teardown waits for it - at most ``timeout``,
+    as a ``KeyboardInterrupt`` that no signal raised never shuts it down.
+    """
+    end = time.monotonic() + timeout
+    while context.ok() and time.monotonic() < end:
+        time.sleep(0.01)
 
 
 def run_node(args: list[str] | None, node_type: Callable[[Sequence[ParamsFile]], 'Node'],
@@ -78,7 +103,7 @@ def run_node(args: list[str] | None, node_type: Callable[[Sequence[ParamsFile]],
         print(f'{prog}: error: {error}', file=sys.stderr)
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        let_the_signal_thread_finish(rclpy.get_default_context())
     finally:
         if node is not None:
             node.destroy_node()
