@@ -206,8 +206,8 @@ def test_the_managed_node_help_names_the_lifecycle(capsys):
 
 
 # Rerun at most twice: the node segfaulted once in about 130 runs at Ctrl-C after a
-# cleanup (rclpy's SIGINT thread against destroy_node; not yet explained, see the
-# stop notes); a node that crashes every time still fails.
+# cleanup (rclpy's SIGINT thread against the teardown, which now waits for it:
+# run.let_the_signal_thread_finish); a node that crashes every time still fails.
 @pytest.mark.flaky(reruns=2)
 def test_cleanup_keeps_the_sim_time_clock_of_a_managed_node(peer):
     """The /clock reader of rclpy is the node's, not the configure's: cleanup leaves it.
