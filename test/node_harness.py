@@ -215,8 +215,8 @@ class SimClock:
 class OdometryClient:
     """Publishes scans to one node instance and collects its odometry and pose."""
 
-    def __init__(self, peer: Peer, namespace: str = '') -> None:
-        """Create the publishers and subscriptions under ``namespace``."""
+    def __init__(self, peer: Peer, namespace: str = '', node_name: str = 'laser_odom') -> None:
+        """Create the publishers and subscriptions of node ``node_name`` in ``namespace``."""
         self.peer = peer
         self.ns = namespace.rstrip('/')
         node = peer.node
@@ -229,7 +229,7 @@ class OdometryClient:
             node.create_subscription(Odometry, f'{self.ns}/odom', self._on_odom, reliable),
             node.create_subscription(PoseStamped, f'{self.ns}/pose', self._on_pose, reliable))
         # Created after the outputs, on purpose: see wait_ready.
-        self._logger_prefix = self.ns.strip('/').replace('/', '.') + '.' if self.ns else ''
+        self._logger_name = '.'.join(filter(None, (*self.ns.strip('/').split('/'), node_name)))
         self._node_heard = False
         rosout = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -244,8 +244,7 @@ class OdometryClient:
         self.pose.setdefault(stamp_to_ns(msg.header.stamp), []).append(msg)
 
     def _on_rosout(self, msg: Log) -> None:
-        name = msg.name
-        if name.startswith(self._logger_prefix) and '.' not in name[len(self._logger_prefix):]:
+        if msg.name == self._logger_name:
             self._node_heard = True
 
     def wait_ready(self, timeout: float = STARTUP_TIMEOUT, heard: float = 10.0) -> bool:
