@@ -83,16 +83,23 @@ def wait_for(predicate: Callable[[], bool], timeout: float, step: float = 0.05) 
     return predicate()
 
 
+def child_env(domain_id: int, **extra: str) -> dict[str, str]:
+    """Return the environment of a child process on ``domain_id`` that imports this tree.
+
+    The checkout goes first on ``PYTHONPATH``, so a child runs this code whatever is
+    installed; ``extra`` adds or overrides variables.
+    """
+    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get('PYTHONPATH', '')) if p)
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONPATH=path, **extra)
+
+
 class NodeProcess:
     """``python -m laser_odom.ros.node --ros-args ...`` with its output in a file."""
 
     def __init__(self, domain_id: int, ros_args: list[str],
                  module: str = 'laser_odom.ros.node') -> None:
         """Start the node (``module``: ``laser_odom.ros.lifecycle`` for the managed one)."""
-        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), RCUTILS_COLORIZED_OUTPUT='0',
-                   PYTHONUNBUFFERED='1')
-        env['PYTHONPATH'] = os.pathsep.join(
-            p for p in (str(ROOT), os.environ.get('PYTHONPATH', '')) if p)
+        env = child_env(domain_id, RCUTILS_COLORIZED_OUTPUT='0', PYTHONUNBUFFERED='1')
         self._log = tempfile.NamedTemporaryFile('w+', prefix='laser_odom_node_', suffix='.log')
         self._final: str | None = None
         self.process = subprocess.Popen(

@@ -7,14 +7,13 @@ node object scan by scan.
 """
 
 import math
-import os
 import subprocess
 import sys
 import time
 import types
 
 from geometry_msgs.msg import TransformStamped
-from node_harness import odometry_msg, pose_error, ROOT, TEST_WORLD, unique_domain_id
+from node_harness import child_env, odometry_msg, pose_error, TEST_WORLD, unique_domain_id
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
@@ -289,10 +288,7 @@ def test_ctrl_c_teardown_waits_for_the_signal_thread(tmp_path):
     """
     script = tmp_path / 'slow_signal_thread.py'
     script.write_text(SLOW_SIGNAL_THREAD)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(unique_domain_id()),
-               PYTHONPATH=os.pathsep.join(p for p in (str(ROOT), os.environ.get(
-                   'PYTHONPATH', '')) if p))
-    done = subprocess.run([sys.executable, str(script)], env=env, capture_output=True,
-                          text=True, timeout=120)
+    done = subprocess.run([sys.executable, str(script)], env=child_env(unique_domain_id()),
+                          capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
     assert 'exit 0 context ok at destroy_node: [False]' in done.stdout, done.stdout

@@ -35,8 +35,8 @@ class Replay:
 
     def __init__(self, domain: int, *args: str) -> None:
         """Start the replay on ``domain``."""
-        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
-                   PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+        from node_harness import child_env
+        env = child_env(domain)
         self.started = time.monotonic()
         self.process = subprocess.Popen(
             [sys.executable, '-m', 'laser_odom.tools.replay', *args], cwd=ROOT, env=env,

@@ -182,8 +182,8 @@ def test_rate_timeline_interleaves_prior_samples_in_stamp_order():
 def _replay_live(bag: Path, domain: int, namespace: str, *extra: str
                  ) -> subprocess.CompletedProcess:
     """Run ``laser_odom_replay --live --namespace`` against the node in ``namespace``."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
-               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    from node_harness import child_env
+    env = child_env(domain)
     return subprocess.run(
         [sys.executable, '-m', 'laser_odom.tools.replay', str(bag), '--live', '--quiet',
          '--namespace', namespace, '--timeout', '5', *extra],

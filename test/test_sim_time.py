@@ -13,7 +13,8 @@ import subprocess
 import sys
 
 from node_harness import (
-    NodeProcess, odometry_pose, OdometryClient, ROOT, SimClock, TEST_WORLD, unique_domain_id)
+    child_env, NodeProcess, odometry_pose, OdometryClient, ROOT, SimClock, TEST_WORLD,
+    unique_domain_id)
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -30,8 +31,7 @@ DOMAIN = unique_domain_id()
 NAMESPACE = f'/sim_time_{os.getpid()}'
 NODE = f'{NAMESPACE}/laser_odom'
 SECOND = 1_000_000_000
-ENV = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN),
-           PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+ENV = child_env(DOMAIN)
 
 
 @pytest.fixture(scope='module')
