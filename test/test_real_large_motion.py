@@ -1,15 +1,15 @@
-"""Real logs with large motion between scans, and a wheel-odometry prior with glitches.
+"""Real logs with the largest motion between scans, and a wheel-odometry prior with glitches.
 
 With ``prior: none`` and otherwise default parameters (``global_search: recover``) the
-odometry must hold on scans 0.5-2 m and 10-170 deg apart: the Intel keyframe log
-(steps of median 0.67 m / 22 deg, 3-4 s apart) and fr079 taking every 5th, 10th or
-20th scan. No log fails more steps than before the search window adapted (the
-counts of c7b0fbe), and at most one failed step per log is silent: the published step
-covariance covers every other (NEES within the 99.9 % bound, the reference's noise
-accounted, :mod:`laser_odom.core.evaluation.consistency`). With its own raw wheel odometry as the
-prior, MIT CSAIL (whose odometry jumps and stalls) must score as well as with the
-constant-velocity prior. Matched against the local map, intel-kf, fr079/5 and fr079/10
-fail no more steps than scan to scan (issue 28). Skipped when ../shared/data is absent.
+odometry must hold on fr079 taking every 20th scan, 2 m and up to 166 deg apart: no
+more failed steps than before the search window adapted (the counts of c7b0fbe), and
+at most one failed step silent (its published step covariance does not cover it: NEES
+beyond the 99.9 % bound, the reference's noise accounted,
+:mod:`laser_odom.core.evaluation.consistency`). The smaller large steps (intel's
+keyframes, fr079 every 5th and 10th scan), as recorded and against the local map, are
+held by :mod:`test_fast_robot`, which runs the same scans re-stamped. With its own raw
+wheel odometry as the prior, MIT CSAIL (whose odometry jumps and stalls) must score as
+well as with the constant-velocity prior. Skipped when ../shared/data is absent.
 """
 
 import pytest
@@ -18,57 +18,23 @@ from laser_odom.core.evaluation.benchmark import benchmark_run, REAL_REFERENCE_N
 from laser_odom.core.matchers import matcher_names
 from laser_odom.tools.figures import figure, load_figures
 
-FAILED_BEFORE = {
-    'intel-kf': {'plicp': 17, 'nicp': 11, 'imls': 11},
-    'fr079/5': {'plicp': 0, 'nicp': 1, 'imls': 1},
-    'fr079/10': {'plicp': 6, 'nicp': 8, 'imls': 7},
-    'fr079/20': {'plicp': 150, 'nicp': 150, 'imls': 149},
-}
-"""Failed steps with ``prior: none`` before the window adapted (c7b0fbe): none may fail
-more now."""
-
-SCAN_MODE_FAILED = {
-    'intel-kf': {'plicp': 12, 'nicp': 3, 'imls': 8},
-    'fr079/5': {'plicp': 0, 'nicp': 0, 'imls': 1},
-    'fr079/10': {'plicp': 5, 'nicp': 8, 'imls': 7},
-}
-"""Failed steps of scan to scan with ``prior: none`` (measured 2026-12-04, the test
-above holds it): matched against the local map no log may fail more (issue 28)."""
-
-ROTATION_BAR = {'intel-kf': 1.0}
-"""Mean rotational RPE [deg] allowed."""
+FAILED_BEFORE = {'plicp': 150, 'nicp': 150, 'imls': 149}
+"""Failed steps of fr079/20 with ``prior: none`` before the window adapted (c7b0fbe):
+none may fail more now."""
 
 SILENT_ALLOWED = 1
-"""Failed steps per log whose covariance did not cover them."""
+"""Failed steps whose covariance did not cover them."""
 
 
-@pytest.mark.parametrize('dataset', sorted(FAILED_BEFORE))
-@pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
-def test_large_motion_without_a_prior(real_log, matcher, dataset):
-    row = benchmark_run(real_log(dataset), matcher, 'none',
+@pytest.mark.parametrize('matcher', sorted(FAILED_BEFORE))
+def test_the_largest_motion_without_a_prior(real_log, matcher):
+    row = benchmark_run(real_log('fr079/20'), matcher, 'none',
                         reference_noise=REAL_REFERENCE_NOISE)
-    figures = (f'{matcher} on {dataset}, prior none: {row.failed} of {row.steps} steps '
+    figures = (f'{matcher} on fr079/20, prior none: {row.failed} of {row.steps} steps '
                f'failed ({row.silent} silent), RPE {row.rpe_trans_mean:.4f} m / '
                f'{row.rpe_rot_mean:.3f} deg, ATE {row.ate:.3f} m')
     assert row.steps >= 230, figures
-    assert row.failed <= FAILED_BEFORE[dataset][matcher], figures
-    assert row.failed <= SCAN_MODE_FAILED.get(dataset, {}).get(matcher, row.failed), figures
-    assert row.silent <= SILENT_ALLOWED, figures
-    if dataset in ROTATION_BAR:
-        assert row.rpe_rot_mean <= ROTATION_BAR[dataset], figures
-
-
-@pytest.mark.parametrize('dataset', sorted(SCAN_MODE_FAILED))
-@pytest.mark.parametrize('matcher', ['plicp', 'nicp', 'imls'])
-def test_large_motion_against_the_local_map(real_log, matcher, dataset):
-    """The step is found against the previous scan and refined on the map: no more fail."""
-    row = benchmark_run(real_log(dataset), matcher, 'none',
-                        reference_noise=REAL_REFERENCE_NOISE, reference='local_map')
-    figures = (f'{matcher} on {dataset}, prior none, local map: {row.failed} of '
-               f'{row.steps} steps failed ({row.silent} silent; scan to scan '
-               f'{SCAN_MODE_FAILED[dataset][matcher]}), ATE {row.ate:.3f} m')
-    assert row.reference == 'local_map' and row.steps >= 470, figures
-    assert row.failed <= SCAN_MODE_FAILED[dataset][matcher], figures
+    assert row.failed <= FAILED_BEFORE[matcher], figures
     assert row.silent <= SILENT_ALLOWED, figures
 
 
