@@ -32,9 +32,12 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py package.xml
 venv: $(STAMP)
 
 # -rs: every skipped test with its reason (the real logs of ../shared/data, a missing
-# optional package), so that a skip is never silent.
+# optional package), so that a skip is never silent. Three workers on two cores: the
+# tests that drive nodes over DDS spend about half their time waiting for another
+# process, which a third worker fills.
+TEST_WORKERS ?= 3
 test: $(STAMP)
-	$(Q)$(BIN)/python -m pytest -q -rs -n 2 --dist worksteal test
+	$(Q)$(BIN)/python -m pytest -q -rs -n $(TEST_WORKERS) --dist worksteal test
 
 lint: $(STAMP)
 	$(Q)$(BIN)/python -m flake8 laser_odom test setup.py launch
