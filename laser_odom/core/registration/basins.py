@@ -24,6 +24,15 @@ alternatives of an ambiguous search. The pose and the status stay as they were: 
 scans do not say which basin is right.
 Only a match whose weakest direction is already weak (standard deviation above
 :data:`CHECKED_SIGMA`) is checked, so a well-pinned match costs no second run.
+
+A prediction that repeats a step not well constrained carries that step's error
+(:meth:`.Registrar.expect`): it may be off by as much, and a match from it that
+returns from a few of its own standard deviations proves only its own basin. The
+starts then lie as many of the carried error's standard deviations along the weakest
+direction away, where that is farther (intel's keyframes 0.1 s apart, plicp against
+the local map, copy 1, scan 109: 2.5 cm from a prediction that repeated a step 0.7 m
+short, published 6 cm certain where the robot had moved 0.74 m further, NEES 75; the
+start 0.93 m on reaches another basin).
 """
 
 from __future__ import annotations
@@ -44,19 +53,24 @@ range) has a standard deviation above this [m] is matched again from two starts.
 
 SHIFT_SIGMAS = 3.0
 """Each start is this many of the match's standard deviations along its weakest
-direction away from the prediction."""
+direction away from the prediction, or as many of the error the prediction carries
+there from a step not well constrained (:meth:`.Registrar.expect`), whichever is
+larger."""
 
 MIN_SHIFT = 0.02
 """Smallest shift of a start [m, metric units]."""
 
 
 def other_basins(rematch: Callable[[se2.Pose], MatchResult | None], match: MatchResult,
-                 guess: se2.Pose, length_scale: float) -> list[np.ndarray]:
+                 guess: se2.Pose, length_scale: float,
+                 carried: np.ndarray | None = None) -> list[np.ndarray]:
     """Return the poses the matcher stops at from starts moved off ``guess`` (see module).
 
     ``rematch`` runs the matcher from a start and returns its match, or None when that
     match fails the checks of a match from a prediction (it is no basin that fits as
-    well). ``match`` is the match from ``guess``, the prediction. Empty when ``match``
+    well). ``match`` is the match from ``guess``, the prediction; ``carried`` the
+    covariance of the error the prediction carries beyond its measured one (zero or
+    None: the starts depend on ``match`` alone). Empty when ``match``
     is pinned well enough not to be checked; poses that coincide with ``match``'s add
     nothing where they are covered.
     """
@@ -65,6 +79,12 @@ def other_basins(rematch: Callable[[se2.Pose], MatchResult | None], match: Match
     if values[weakest] >= CHECKED_SIGMA ** -2:
         return []
     shift = max(MIN_SHIFT, SHIFT_SIGMAS / np.sqrt(max(values[weakest], 1e-300)))
+    if carried is not None and np.any(carried):
+        to_metric = 1.0 / metric_scale(length_scale)
+        spread = to_metric[:, None] * carried * to_metric[None, :]
+        direction = vectors[:, weakest]
+        shift = max(shift, SHIFT_SIGMAS * float(np.sqrt(max(
+            direction @ spread @ direction, 0.0))))
     step = shift * metric_scale(length_scale) * vectors[:, weakest]
     basins = []
     for start in (np.asarray(guess, dtype=float) + step, np.asarray(guess, dtype=float) - step):

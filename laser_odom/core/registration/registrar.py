@@ -357,8 +357,8 @@ class Registrar:
             return None if self.local_failure(landed, start, config,
                                               reference.virtual) else landed
 
-        record_other_basins(match, other_basins(rematch, match, guess, current.length_scale),
-                            self.events)
+        record_other_basins(match, other_basins(rematch, match, guess, current.length_scale,
+                                                self.carried), self.events)
 
     def local_match(self, matcher: ScanMatcher, reference: ScanPoints,
                     current: ScanPoints, guess: se2.Pose,
