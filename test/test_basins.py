@@ -38,6 +38,16 @@ def match_at(pose, information) -> MatchResult:
                        covariance=np.linalg.inv(information))
 
 
+def recorded_starts(sigma: float):
+    """Return a ``rematch`` that records each start and stops there, and its record."""
+    starts = []
+
+    def rematch(start):
+        starts.append(np.array(start))
+        return match_at(start, weak_along_x(sigma))
+    return rematch, starts
+
+
 def test_a_well_pinned_match_is_not_matched_again():
     """Weakest standard deviation below CHECKED_SIGMA: no second run, no basins."""
     starts = []
@@ -50,12 +60,7 @@ def test_a_well_pinned_match_is_not_matched_again():
 def test_the_starts_lie_three_sigmas_either_way_along_the_weakest_direction():
     """Metric units: a weak turn moves the start by 3 sigma of arc at the RMS range."""
     guess = se2.pose(0.5, 0.2, 0.1)
-    starts = []
-
-    def rematch(start):
-        starts.append(np.array(start))
-        return match_at(start, weak_along_x(0.02))
-
+    rematch, starts = recorded_starts(0.02)
     match = match_at(guess, weak_along_x(0.02))
     basins = other_basins(rematch, match, guess, LENGTH)
     np.testing.assert_allclose(sorted(s[0] for s in starts), [0.44, 0.56], atol=1e-12)
@@ -79,12 +84,7 @@ def test_a_prediction_carrying_a_weak_steps_error_is_checked_that_far_off():
     came back from 3 of its own sigmas (6 cm) only proves its own basin.
     """
     guess = se2.pose(0.2, 0.0, 0.0)
-    starts = []
-
-    def rematch(start):
-        starts.append(np.array(start))
-        return match_at(start, weak_along_x(0.02))
-
+    rematch, starts = recorded_starts(0.02)
     match = match_at(guess, weak_along_x(0.02))
     carried = np.diag([0.3 ** 2, 0.01 ** 2, 1e-4])
     other_basins(rematch, match, guess, LENGTH, carried)

@@ -78,14 +78,12 @@ def other_basins(rematch: Callable[[se2.Pose], MatchResult | None], match: Match
     weakest = int(np.argmin(values))
     if values[weakest] >= CHECKED_SIGMA ** -2:
         return []
+    scale = metric_scale(length_scale)
     shift = max(MIN_SHIFT, SHIFT_SIGMAS / np.sqrt(max(values[weakest], 1e-300)))
-    if carried is not None and np.any(carried):
-        to_metric = 1.0 / metric_scale(length_scale)
-        spread = to_metric[:, None] * carried * to_metric[None, :]
-        direction = vectors[:, weakest]
-        shift = max(shift, SHIFT_SIGMAS * float(np.sqrt(max(
-            direction @ spread @ direction, 0.0))))
-    step = shift * metric_scale(length_scale) * vectors[:, weakest]
+    if carried is not None:
+        along = vectors[:, weakest] / scale  # the metric coordinate along it, in [x, y, theta]
+        shift = max(shift, SHIFT_SIGMAS * float(np.sqrt(max(along @ carried @ along, 0.0))))
+    step = shift * scale * vectors[:, weakest]
     basins = []
     for start in (np.asarray(guess, dtype=float) + step, np.asarray(guess, dtype=float) - step):
         start[2] = se2.wrap_angle(start[2])
